@@ -13,13 +13,7 @@ from typing import Protocol
 import numpy as np
 
 from .env import CoverageEnv
-from .voronoi import (
-    MASS_EPS,
-    column_intervals,
-    delaunay_neighbours,
-    finish_centroids,
-    moments_to_sums,
-)
+from .voronoi import MASS_EPS, Cells, reduce_cells, world_cells
 
 GOAL_EPS_M = 1e-10
 BLOCK = 16  # rows per block for the block prefix sums over local maps
@@ -54,16 +48,12 @@ class ClairvoyantCVT:
 
     def goals(self, env: CoverageEnv) -> np.ndarray:
         """Φ-weighted centroids of the robots' Voronoi cells on the world map [N, 2]."""
-        x = env.positions_m
-        nbr, valid = delaunay_neighbours(x)
-        others = x[nbr]
-        w = env.params.world_size
-        columns = np.arange(w)
-        lo, hi = column_intervals(x, others, valid, columns, 0, w)
-        s = env.prefix.interval_sums(columns, lo, hi)[:2]
-        mass, first, _ = moments_to_sums(x, columns + 0.5, s[0], s[1], None)
-        self.masses = mass
-        return finish_centroids(mass, first, x, others, valid, np.array([0.0, 0.0, w, w]))
+        cells = world_cells(env.positions_m, env.params.world_size)
+        robot, column = cells.column_pairs()
+        lo, hi = cells.row_intervals(robot, column)
+        sums = reduce_cells(cells, robot, column, env.prefix.interval_sums(column, lo, hi, 2), False)
+        self.masses = sums.mass
+        return sums.centroid_m
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         self.goals_m = self.goals(env)
@@ -85,64 +75,61 @@ class DecentralizedCVT:
         p = env.params
         x = env.positions_m
         n, s, w = len(x), p.local_map_size, p.world_size
-        cells = env.cells()
         if local_maps is None:
             local_maps = env.local_maps()
-        # Competitors: every other robot within r_c.
-        valid = env.neighbours()
-        others = np.broadcast_to(x[None], (n, n, 2))
-        # Window in global cells: columns/rows c - S/2 .. c + S/2 - 1, trimmed to the world.
-        base = cells - s // 2  # [N, 2] global index of local cell 0
-        box_lo = np.maximum(base, 0)
-        box_hi = np.minimum(base + s, w)
-        columns = base[:, 0:1] + np.arange(s)[None]  # [N, S]
-        lo, hi = column_intervals(x, others, valid, columns, box_lo[:, 1], box_hi[:, 1])
-        outside = (columns < box_lo[:, 0:1]) | (columns >= box_hi[:, 0:1])
-        hi = np.where(outside, lo, hi)
-        # Interval sums over the local maps via block prefix sums along y (local row coordinates).
-        lo_l, hi_l = lo - base[:, 1:2], hi - base[:, 1:2]
-        s0, s1 = _interval_sums(local_maps, lo_l, hi_l)
-        s1 = s1 + base[:, 1:2] * s0  # local → global y moment
-        mass, first, _ = moments_to_sums(x, columns + 0.5, s0, s1, None)
-        self.masses = mass
-        boxes = np.concatenate([box_lo, box_hi], axis=1).astype(np.float64)
-        return finish_centroids(mass, first, x, others, valid, boxes)
+        base = env.cells() - s // 2  # [N, 2] global cell of local cell (0, 0)
+        boxes = np.concatenate([np.maximum(base, 0), np.minimum(base + s, w)], axis=1).astype(np.float64)
+        cells = Cells(x, np.broadcast_to(x[None], (n, n, 2)), env.neighbours(), boxes)
+        robot, column = cells.column_pairs()
+        lo, hi = cells.row_intervals(robot, column)
+        s0, s1 = LocalPrefix(local_maps).interval_sums(robot, column - base[robot, 0], lo - base[robot, 1], hi - base[robot, 1])
+        s1 = s1 + base[robot, 1] * s0  # local → global y moment
+        sums = reduce_cells(cells, robot, column, np.stack([s0, s1]), False)
+        self.masses = sums.mass
+        return sums.centroid_m
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         self.goals_m = self.goals(env)
         return lloyd_velocity(env, self.goals_m)
 
 
-def _interval_sums(maps: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Σ maps[n, c, lo:hi] and Σ maps[n, c, lo:hi]·(j + 0.5) for every robot n and column c.
+class LocalPrefix:
+    """Block prefix sums along y of per-robot local maps [N, C, S] float32 (S a multiple of 16).
 
-    maps [N, C, S] float32; lo, hi [N, C] local rows. Uses per-block sums (16 rows) plus the partial
-    block at each end, so the work is one pass over the maps and a small gather. Returns float64.
+    ``cum[n, c, b]`` = Σ over rows < 16·b of the map and of map·(j + 0.5); a sum over rows
+    [lo, hi) is then two block lookups plus the partial blocks at each end (≤ 16 cells each).
     """
-    n, c, s = maps.shape
-    nb = s // BLOCK
-    blocks = maps.reshape(n, c, nb, BLOCK)
-    offs = np.arange(BLOCK, dtype=np.float32) + np.float32(0.5)
-    bs = blocks.sum(axis=3, dtype=np.float64)  # [N, C, nb]
-    by = (blocks @ offs).astype(np.float64) + bs * (np.arange(nb) * BLOCK)  # Σ map·(j+0.5)
-    cum0 = np.zeros((n, c, nb + 1))
-    cum1 = np.zeros((n, c, nb + 1))
-    np.cumsum(bs, axis=2, out=cum0[..., 1:])
-    np.cumsum(by, axis=2, out=cum1[..., 1:])
 
-    def prefix(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def __init__(self, maps: np.ndarray):
+        n, c, s = maps.shape
+        nb = s // BLOCK
+        self.maps = maps
+        self.shape = (n, c, s)
+        weights = np.stack([np.ones(BLOCK), np.arange(BLOCK) + 0.5], 1).astype(np.float32)  # [16, 2]
+        blocks = (maps.reshape(-1, BLOCK) @ weights).reshape(n * c, nb, 2).astype(np.float64)
+        blocks[..., 1] += blocks[..., 0] * (np.arange(nb) * BLOCK)  # → local row offsets
+        # Cumulative sums over blocks as one GEMM: cum[:, b, m] = Σ_{b' < b} blocks[:, b', m].
+        tri = np.kron(np.triu(np.ones((nb, nb + 1)), 1), np.eye(2))  # [nb·2, (nb+1)·2]
+        self.cum = (blocks.reshape(n * c, nb * 2) @ tri).reshape(n * c, nb + 1, 2)
+
+    def prefix(self, robot: np.ndarray, column: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Σ over rows < h of (map, map·(j+0.5)) at each (robot, local column): [P, 2]."""
+        n, c, s = self.shape
         b = h // BLOCK
         t = np.arange(BLOCK)
-        rows = np.minimum(b[..., None] * BLOCK + t, s - 1)  # [N, C, BLOCK]
-        vals = np.take_along_axis(maps, rows, axis=2).astype(np.float64)
-        vals *= t < (h - b * BLOCK)[..., None]
-        p0 = np.take_along_axis(cum0, b[..., None], axis=2)[..., 0] + vals.sum(axis=2)
-        p1 = np.take_along_axis(cum1, b[..., None], axis=2)[..., 0] + (vals * (rows + 0.5)).sum(axis=2)
-        return p0, p1
+        rows = np.minimum(b[:, None] * BLOCK + t, s - 1)  # [P, 16]
+        line = robot * c + column
+        vals = np.take(self.maps.reshape(-1), (line * s)[:, None] + rows).astype(np.float64)
+        vals *= t < (h - b * BLOCK)[:, None]
+        part = np.stack([vals.sum(1), (vals * (rows + 0.5)).sum(1)], 1)
+        return self.cum[line, b] + part
 
-    a0, a1 = prefix(lo)
-    b0, b1 = prefix(hi)
-    return b0 - a0, b1 - a1
+    def interval_sums(self, robot, column, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+        """(Σ map, Σ map·(j+0.5)) over local rows [lo, hi) per pair, float64 [P] each."""
+        p = len(robot)
+        both = self.prefix(np.concatenate([robot, robot]), np.concatenate([column, column]), np.concatenate([hi, lo]))
+        d = both[:p] - both[p:]
+        return d[:, 0], d[:, 1]
 
 
 __all__ = ["Controller", "ClairvoyantCVT", "DecentralizedCVT", "lloyd_velocity", "MASS_EPS"]

@@ -96,7 +96,7 @@ class Scenario:
         if unknown:
             raise ScenarioError(f"{where}: unknown key(s) {unknown}")
         feats = _features(d.get("features"), where)
-        robots = _points(d.get("robots"), f"{where}: field 'robots'")
+        robots = _points(d.get("robots"), where, "robots")
         if len(robots) == 0:
             raise ScenarioError(f"{where}: field 'robots' must list at least one [x, y]")
         overrides = d.get("params", {})
@@ -139,14 +139,15 @@ def _number(v: object, what: str) -> float:
     return float(v)
 
 
-def _points(v: object, what: str) -> np.ndarray:
+def _points(v: object, where: str, name: str) -> np.ndarray:
     if not isinstance(v, list):
-        raise ScenarioError(f"{what} must be a list of [x, y] pairs")
+        raise ScenarioError(f"{where}: field '{name}' must be a list of [x, y] pairs")
     out = np.empty((len(v), 2))
     for i, p in enumerate(v):
+        what = f"{where}: field '{name}[{i}]'"
         if not isinstance(p, (list, tuple)) or len(p) != 2:
-            raise ScenarioError(f"{what}[{i}] must be [x, y], got {p!r}")
-        out[i] = [_number(c, f"{what}[{i}]") for c in p]
+            raise ScenarioError(f"{what} must be [x, y], got {p!r}")
+        out[i] = [_number(c, what) for c in p]
     return out
 
 
@@ -158,7 +159,9 @@ def _features(v: object, where: str) -> np.ndarray:
         what = f"{where}: field 'features[{i}]'"
         if not isinstance(f, dict) or not {"mean", "sigma", "peak"} <= set(f):
             raise ScenarioError(f"{what} must be an object with 'mean', 'sigma' and 'peak'")
-        mean = _points([f["mean"]], f"{what}.mean")[0]
+        if not isinstance(f["mean"], list):
+            raise ScenarioError(f"{what}.mean must be [x, y], got {f['mean']!r}")
+        mean = _points([f["mean"]], where, f"features[{i}].mean")[0]
         sigma = _number(f["sigma"], f"{what}.sigma")
         peak = _number(f["peak"], f"{what}.peak")
         if sigma <= 0 or peak <= 0:

@@ -4,21 +4,22 @@ Rasterisation follows the Coverage Control Library (``voronoi.cpp``, ``CellNavig
 (i, j) covers [i, i+1) x [j, j+1) m and belongs to robot k's Voronoi cell when its centre
 (i + 0.5, j + 0.5) lies in k's convex cell polygon (clipped to a rectangular box). The library walks
 each polygon column by column; at column centre x it takes the rows ``round(y_lower) <= j <
-round(y_upper)``. We do the same without polygons: at every column centre, each neighbour's
-half-plane bounds y from above or below, so a cell's extent in a column is one interval of rows
+round(y_upper)``. We do the same without building polygons: at a column centre each competing
+site's half-plane bounds y from above or below, so a cell's extent in a column is one interval
 
     lo = floor(y_lower + 0.5),  hi = floor(y_upper + 0.5)        (rows lo .. hi-1)
 
-and a sum of the map over that interval is a difference of two prefix sums along y. The whole cell
-is one lookup per column it spans: no per-cell work and no Python loop over map cells.
+and a sum of the map over it is a difference of two prefix sums along y: one lookup per column the
+cell spans, no per-cell work, no Python loop over map cells.
 
-Sums over a *fixed* map (the world map, used by the clairvoyant expert and by J) use
-:class:`ColumnPrefix`; sums over maps that change while robots explore use the block prefix sums
-of :class:`madp.sim.robot_maps.RobotMaps`.
+Only the columns a cell can span are evaluated: a coarse pass every ``COARSE`` columns finds, for
+each cell, the nearest coarse columns on either side of its site that the polygon does not reach
+(the polygon's x-extent is an interval containing the site), and the fine pass evaluates the packed
+list of (robot, column) pairs in between.
 
 When a cell has (almost) no importance mass the library falls back to CGAL's ``centroid`` of the
-polygon's vertex range, i.e. the mean of the clipped polygon's vertices;
-:func:`polygon_vertex_means` reproduces that with a batched Sutherland-Hodgman clip.
+polygon's vertex range, i.e. the mean of the clipped polygon's vertices; :func:`polygon_vertex_means`
+enumerates those vertices exactly (every pairwise line intersection that satisfies all constraints).
 """
 
 from __future__ import annotations
@@ -30,15 +31,16 @@ from scipy.spatial import Delaunay, QhullError
 
 MASS_EPS = 1e-10
 """Below this mass a cell's goal is its polygon's vertex mean (library's ``kEps``)."""
+COARSE = 16
+"""Column stride of the coarse pass that brackets each cell's x-extent."""
 
 
 @dataclass(frozen=True)
 class CellSums:
     """Per-robot sums over each Voronoi cell, all float64.
 
-    mass [N]: sum of the map over the cell; centroid_m [N, 2]: map-weighted centroid, or the
-    polygon's vertex mean where mass < MASS_EPS; cost [N]: sum of map * |q - x_k|^2 (m^2), or None
-    when not requested.
+    mass [N]: Σ Φ over the cell; centroid_m [N, 2]: Φ-weighted centroid, or the polygon's vertex
+    mean where mass < MASS_EPS; cost [N] (m²): Σ Φ |q - x_k|², or None when not requested.
     """
 
     mass: np.ndarray
@@ -50,7 +52,7 @@ def delaunay_neighbours(sites_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Delaunay neighbours of each site, padded: (index [N, M] int, valid [N, M] bool).
 
     The Voronoi cell of a site is the intersection of the half-planes of its Delaunay neighbours
-    alone. Degenerate layouts (fewer than 3 sites, all collinear) fall back to every other site.
+    alone. Degenerate layouts (fewer than 4 sites, all collinear) fall back to every other site.
     """
     n = len(sites_m)
     try:
@@ -69,183 +71,202 @@ def delaunay_neighbours(sites_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(valid, indices[pos], 0), valid
 
 
-def column_intervals(
-    sites_m: np.ndarray,
-    others_m: np.ndarray,
-    valid: np.ndarray,
-    columns: np.ndarray,
-    row_lo: np.ndarray | int,
-    row_hi: np.ndarray | int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Row interval [lo, hi) of each robot's cell in each column.
+@dataclass(frozen=True)
+class Cells:
+    """Convex cells: sites [R, 2], competitors [R, M, 2] (``valid`` [R, M]) and boxes [R, 4].
 
-    sites_m [R, 2]; others_m [R, M, 2] competing sites (ignored where ``valid`` [R, M] is False);
-    columns [R, C] or [C] integer column indices; row_lo/row_hi [R] or scalars: the box's rows.
-    Returns lo, hi [R, C] int64 with hi >= lo (an empty interval where the cell misses a column).
+    Each competitor m adds the half-plane d·(q - mid) <= 0 (d = other - site, mid = midpoint);
+    at column centre x it reads y <= icpt_up + slope·x (d_y > 0) or y >= icpt_lo + slope·x (d_y < 0).
+    Boxes (x0, y0, x1, y1) are in whole cells.
     """
-    columns = np.asarray(columns)
-    xc = (columns + 0.5).astype(np.float64)
-    if xc.ndim == 1:
-        xc = xc[None, :]
-    d = others_m - sites_m[:, None, :]  # [R, M, 2]
-    mid = 0.5 * (others_m + sites_m[:, None, :])
-    dx, dy = d[..., 0], d[..., 1]
-    # Half-plane d . (q - mid) <= 0. At column centre x: dy * y <= dy * mid_y - dx * (x - mid_x).
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope = np.where(dy != 0, -dx / dy, 0.0)  # [R, M]
-    intercept = mid[..., 1] - slope * mid[..., 0]
-    bound = intercept[..., None] + slope[..., None] * xc[:, None, :]  # [R, M, C]
-    upper_mask = (valid & (dy > 0))[..., None]
-    lower_mask = (valid & (dy < 0))[..., None]
-    y_upper = np.min(np.where(upper_mask, bound, np.inf), axis=1)
-    y_lower = np.max(np.where(lower_mask, bound, -np.inf), axis=1)
-    # Neighbours level with the site (dy == 0) cut whole columns: keep x on the site's side.
-    flat = valid & (dy == 0) & (dx != 0)
-    if flat.any():
-        side = dx[..., None] * (xc[:, None, :] - mid[..., 0][..., None])  # must be <= 0
-        cut = np.any(flat[..., None] & (side > 0), axis=1)
-        y_upper = np.where(cut, -np.inf, y_upper)
-    row_lo = np.asarray(row_lo)[..., None] if np.ndim(row_lo) else row_lo
-    row_hi = np.asarray(row_hi)[..., None] if np.ndim(row_hi) else row_hi
-    lo = np.clip(np.floor(np.clip(y_lower, -1e9, 1e9) + 0.5), row_lo, row_hi).astype(np.int64)
-    hi = np.clip(np.floor(np.clip(y_upper, -1e9, 1e9) + 0.5), row_lo, row_hi).astype(np.int64)
-    return lo, np.maximum(hi, lo)
+
+    sites: np.ndarray
+    others: np.ndarray
+    valid: np.ndarray
+    boxes: np.ndarray
+
+    def __post_init__(self) -> None:
+        # Drop competitors whose half-plane holds the whole box (they cannot shape the cell), then
+        # pack the remaining ones to the front so M shrinks to the largest count that matters.
+        d = self.others - self.sites[:, None, :]
+        mid = 0.5 * (self.others + self.sites[:, None, :])
+        x0, y0, x1, y1 = (self.boxes[:, k : k + 1] for k in range(4))
+        reach = (np.maximum(d[..., 0] * (x0 - mid[..., 0]), d[..., 0] * (x1 - mid[..., 0]))
+                 + np.maximum(d[..., 1] * (y0 - mid[..., 1]), d[..., 1] * (y1 - mid[..., 1])))
+        valid = self.valid & (reach > 0)
+        order = np.argsort(~valid, axis=1, kind="stable")[:, : max(int(valid.sum(1).max()), 1)]
+        object.__setattr__(self, "valid", np.take_along_axis(valid, order, 1))
+        object.__setattr__(self, "others", np.take_along_axis(self.others, order[..., None], 1))
+        d = self.others - self.sites[:, None, :]
+        mid = 0.5 * (self.others + self.sites[:, None, :])
+        dx, dy = d[..., 0], d[..., 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = np.where(self.valid & (dy != 0), -dx / dy, 0.0)
+        icpt = mid[..., 1] - slope * mid[..., 0]
+        object.__setattr__(self, "slope", slope)
+        object.__setattr__(self, "icpt_up", np.where(self.valid & (dy > 0), icpt, np.inf))
+        object.__setattr__(self, "icpt_lo", np.where(self.valid & (dy < 0), icpt, -np.inf))
+        # Competitors level with the site (d_y = 0) bound x instead.
+        flat = self.valid & (dy == 0) & (dx != 0)
+        x_hi = np.where(flat & (dx > 0), mid[..., 0], np.inf).min(axis=1)
+        x_lo = np.where(flat & (dx < 0), mid[..., 0], -np.inf).max(axis=1)
+        object.__setattr__(self, "x_lo", np.maximum(x_lo, self.boxes[:, 0]))
+        object.__setattr__(self, "x_hi", np.minimum(x_hi, self.boxes[:, 2]))
+
+    def y_bounds(self, xc: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous (y_lower, y_upper) [Q, C] at column centres xc [Q, C] (Q = R, or the robots
+        ``rows`` [Q] when given), clipped to the boxes; y_lower >= y_upper where the cell is absent."""
+        r = slice(None) if rows is None else rows
+        t = self.slope[r][..., None] * xc[:, None, :]  # [Q, M, C]
+        y_up = np.min(self.icpt_up[r][..., None] + t, axis=1)
+        y_lo = np.max(self.icpt_lo[r][..., None] + t, axis=1)
+        box = self.boxes[r]
+        y_up = np.minimum(y_up, box[:, 3:4])
+        y_lo = np.maximum(y_lo, box[:, 1:2])
+        outside = (xc < self.x_lo[r][:, None]) | (xc > self.x_hi[r][:, None])
+        return y_lo, np.where(outside, -np.inf, y_up)
+
+    def column_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Packed (robot [P], column [P]) pairs covering every column each cell can reach."""
+        r = len(self.sites)
+        x0, x1 = self.boxes[:, 0].astype(np.int64), self.boxes[:, 2].astype(np.int64)
+        ncoarse = int(((x1 - x0 + COARSE - 1) // COARSE).max())
+        coarse = x0[:, None] + COARSE * np.arange(ncoarse)[None]  # [R, K]
+        y_lo, y_up = self.y_bounds(coarse + 0.5)
+        absent = (y_lo >= y_up) | (coarse >= x1[:, None])
+        site_col = self.sites[:, 0:1] - 0.5
+        left = np.max(np.where(absent & (coarse < site_col), coarse, x0[:, None] - 1), axis=1)
+        right = np.min(np.where(absent & (coarse > site_col), coarse, x1[:, None]), axis=1)
+        counts = np.maximum(right - left - 1, 0)
+        robot = np.repeat(np.arange(r), counts)
+        starts = np.cumsum(counts) - counts
+        column = left[robot] + 1 + (np.arange(counts.sum()) - starts[robot])
+        return robot, column
+
+    def row_intervals(self, robot: np.ndarray, column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows [lo, hi) of each (robot, column) pair, as the library rounds them: int64 [P]."""
+        y_lo, y_up = self.y_bounds((column + 0.5)[:, None], robot)
+        lo = np.floor(np.clip(y_lo[:, 0], -1e9, 1e9) + 0.5).astype(np.int64)
+        hi = np.floor(np.clip(y_up[:, 0], -1e9, 1e9) + 0.5).astype(np.int64)
+        box = self.boxes[robot]
+        lo = np.clip(lo, box[:, 1], box[:, 3]).astype(np.int64)
+        hi = np.clip(hi, box[:, 1], box[:, 3]).astype(np.int64)
+        return lo, np.maximum(hi, lo)
 
 
 class ColumnPrefix:
-    """Prefix sums along y of a fixed map: Φ, Φ·y and Φ·y² per column, [W, H + 1] float64 each.
+    """Prefix sums along y of a fixed map: Φ, Φ·y and Φ·y² per column, [3, W·(H + 1)] float64.
 
     Built once per map (an episode's world map never changes); afterwards the sum of Φ over rows
-    lo..hi-1 of column c is ``p0[c, hi] - p0[c, lo]``.
+    lo..hi-1 of column c is ``p[0, c·(H+1) + hi] - p[0, c·(H+1) + lo]``.
     """
 
     def __init__(self, map_xy: np.ndarray):
         m = np.asarray(map_xy, dtype=np.float64)
         self.width, self.height = m.shape
         y = np.arange(self.height, dtype=np.float64) + 0.5
-        self.p = np.zeros((3, self.width, self.height + 1))
-        np.cumsum(m, axis=1, out=self.p[0, :, 1:])
-        np.cumsum(m * y, axis=1, out=self.p[1, :, 1:])
-        np.cumsum(m * (y * y), axis=1, out=self.p[2, :, 1:])
+        p = np.zeros((3, self.width, self.height + 1))
+        np.cumsum(m, axis=1, out=p[0, :, 1:])
+        np.cumsum(m * y, axis=1, out=p[1, :, 1:])
+        np.cumsum(m * (y * y), axis=1, out=p[2, :, 1:])
+        self.p = p.reshape(3, -1)
 
-    def interval_sums(self, columns: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Sums of (Φ, Φ·y, Φ·y²) over rows [lo, hi) of the given columns: [3, *lo.shape]."""
-        cols = np.broadcast_to(columns, lo.shape)
-        return self.p[:, cols, hi] - self.p[:, cols, lo]
-
-
-def moments_to_sums(
-    sites_m: np.ndarray,
-    xc: np.ndarray,
-    s0: np.ndarray,
-    s1: np.ndarray,
-    s2: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Reduce per-column moments [R, C] to (mass [R], weighted-position sums [R, 2], cost [R]).
-
-    xc [R, C] or [C]: column centres (m); s0, s1, s2: per-column sums of Φ, Φ·y, Φ·y².
-    """
-    xc = np.broadcast_to(xc, s0.shape)
-    mass = s0.sum(axis=1)
-    first = np.stack([(s0 * xc).sum(axis=1), s1.sum(axis=1)], axis=1)
-    cost = None
-    if s2 is not None:
-        sx, sy = sites_m[:, 0:1], sites_m[:, 1:2]
-        cost = (s0 * (xc - sx) ** 2 + s2 - 2.0 * sy * s1 + sy * sy * s0).sum(axis=1)
-    return mass, first, cost
+    def interval_sums(self, column: np.ndarray, lo: np.ndarray, hi: np.ndarray, moments: int = 3) -> np.ndarray:
+        """Sums of (Φ, Φ·y, Φ·y²)[:moments] over rows [lo, hi) of each column: [moments, P]."""
+        base = column * (self.height + 1)
+        p = self.p[:moments]
+        return np.take(p, base + hi, axis=1) - np.take(p, base + lo, axis=1)
 
 
-def polygon_vertex_means(
-    sites_m: np.ndarray, others_m: np.ndarray, valid: np.ndarray, boxes: np.ndarray
-) -> np.ndarray:
-    """Mean of the vertices of each Voronoi cell clipped to its box: [R, 2].
-
-    sites_m [R, 2]; others_m [R, M, 2]; valid [R, M]; boxes [R, 4] = (x0, y0, x1, y1).
-    All R polygons are clipped at once (Sutherland-Hodgman, one half-plane per step). Consecutive
-    vertices closer than 1e-9 m are merged, as CGAL's exact arrangement would.
-    """
-    r, m = valid.shape
-    cap = 4 + m + 1
-    poly = np.zeros((r, cap, 2))
-    x0, y0, x1, y1 = boxes.T
-    poly[:, 0] = np.stack([x0, y0], 1)
-    poly[:, 1] = np.stack([x1, y0], 1)
-    poly[:, 2] = np.stack([x1, y1], 1)
-    poly[:, 3] = np.stack([x0, y1], 1)
-    count = np.full(r, 4)
-    slot = np.arange(cap)
-    rows = np.arange(r)[:, None]
-    for k in range(m):
-        d = others_m[:, k] - sites_m
-        mid = 0.5 * (others_m[:, k] + sites_m)
-        s = np.einsum("rvc,rc->rv", poly - mid[:, None], d)
-        in_range = slot[None] < count[:, None]
-        inside = (s <= 0) | ~valid[:, k : k + 1]
-        nxt = (slot[None] + 1) % np.maximum(count[:, None], 1)
-        s_next = np.take_along_axis(s, nxt, 1)
-        inside_next = np.take_along_axis(inside, nxt, 1)
-        p_next = np.take_along_axis(poly, nxt[..., None], 1)
-        keep = inside & in_range
-        cross = (inside != inside_next) & in_range
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(cross, s / (s - s_next), 0.0)
-        inter = poly + t[..., None] * (p_next - poly)
-        emitted = keep.astype(np.int64) + cross
-        start = np.cumsum(emitted, 1) - emitted
-        new = np.zeros_like(poly)
-        rr = np.broadcast_to(rows, keep.shape)
-        new[rr[keep], start[keep]] = poly[keep]
-        new[rr[cross], (start + keep)[cross]] = inter[cross]
-        poly, count = new, emitted.sum(1)
-    in_range = slot[None] < count[:, None]
-    prev = np.take_along_axis(poly, ((slot[None] - 1) % np.maximum(count[:, None], 1))[..., None], 1)
-    distinct = in_range & (np.linalg.norm(poly - prev, axis=2) > 1e-9)
-    distinct[:, 0] |= in_range[:, 0] & (count == 1)
-    n = np.maximum(distinct.sum(1), 1)
-    return (poly * distinct[..., None]).sum(1) / n[:, None]
-
-
-def voronoi_sums(
-    prefix: ColumnPrefix, sites_m: np.ndarray, with_cost: bool = True
+def reduce_cells(
+    cells: Cells, robot: np.ndarray, column: np.ndarray, s: np.ndarray, with_cost: bool,
+    with_centroids: bool = True,
 ) -> CellSums:
-    """Masses, centroids (and costs) of every robot's Voronoi cell over a whole fixed map."""
-    sites_m = np.asarray(sites_m, dtype=np.float64)
-    nbr, valid = delaunay_neighbours(sites_m)
-    others = sites_m[nbr]
-    columns = np.arange(prefix.width)
-    lo, hi = column_intervals(sites_m, others, valid, columns, 0, prefix.height)
-    sums = prefix.interval_sums(columns, lo, hi)
-    xc = columns + 0.5
-    mass, first, cost = moments_to_sums(sites_m, xc, sums[0], sums[1], sums[2] if with_cost else None)
-    return CellSums(mass, finish_centroids(mass, first, sites_m, others, valid,
-                                           np.array([0.0, 0.0, prefix.width, prefix.height])), cost)
-
-
-def finish_centroids(
-    mass: np.ndarray,
-    first: np.ndarray,
-    sites_m: np.ndarray,
-    others_m: np.ndarray,
-    valid: np.ndarray,
-    boxes: np.ndarray,
-) -> np.ndarray:
-    """Centroid = first moment / mass, or the clipped polygon's vertex mean where mass < MASS_EPS."""
+    """Reduce per-pair moments s [2 or 3, P] (Σ Φ, Σ Φ·y, Σ Φ·y²) to per-cell sums."""
+    r = len(cells.sites)
+    xc = column + 0.5
+    mass = np.bincount(robot, s[0], minlength=r)
+    first = np.stack([np.bincount(robot, s[0] * xc, minlength=r), np.bincount(robot, s[1], minlength=r)], 1)
+    cost = None
+    if with_cost:
+        sx, sy = cells.sites[robot, 0], cells.sites[robot, 1]
+        per = s[0] * (xc - sx) ** 2 + s[2] - 2.0 * sy * s[1] + sy * sy * s[0]
+        cost = np.bincount(robot, per, minlength=r)
     with np.errstate(divide="ignore", invalid="ignore"):
         centroid = first / mass[:, None]
     empty = mass < MASS_EPS
-    if empty.any():
-        boxes = np.broadcast_to(boxes, (len(mass), 4))
-        centroid[empty] = polygon_vertex_means(
-            sites_m[empty], others_m[empty], valid[empty], boxes[empty]
-        )
-    return centroid
+    if with_centroids and empty.any():
+        centroid[empty] = polygon_vertex_means(cells, np.nonzero(empty)[0])
+    return CellSums(mass, centroid, cost)
+
+
+def polygon_vertex_means(cells: Cells, which: np.ndarray) -> np.ndarray:
+    """Mean of the distinct vertices of the cells ``which`` (clipped polygons): [len(which), 2].
+
+    Vertices are the pairwise intersections of the cell's lines (competitor bisectors and box
+    edges) that satisfy every constraint; duplicates (several lines through one point) count once.
+    """
+    sites = cells.sites[which]
+    others = cells.others[which]
+    valid = cells.valid[which]
+    boxes = cells.boxes[which]
+    q = len(which)
+    d = others - sites[:, None]
+    a = np.where(valid[..., None], d, 0.0)  # a·v <= b
+    b = np.where(valid, np.einsum("qmc,qmc->qm", d, 0.5 * (others + sites[:, None])), 1.0)
+    box_a = np.array([[-1.0, 0.0], [1.0, 0.0], [0.0, -1.0], [0.0, 1.0]])
+    box_b = np.stack([-boxes[:, 0], boxes[:, 2], -boxes[:, 1], boxes[:, 3]], 1)
+    a = np.concatenate([a, np.broadcast_to(box_a, (q, 4, 2))], 1)  # [Q, L, 2]
+    b = np.concatenate([b, box_b], 1)
+    live = np.concatenate([valid, np.ones((q, 4), bool)], 1)
+    i, j = np.triu_indices(a.shape[1], 1)
+    a1, a2, b1, b2 = a[:, i], a[:, j], b[:, i], b[:, j]
+    det = a1[..., 0] * a2[..., 1] - a1[..., 1] * a2[..., 0]
+    ok = live[:, i] & live[:, j] & (np.abs(det) > 1e-12 * np.linalg.norm(a1, axis=2) * np.linalg.norm(a2, axis=2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vx = (b1 * a2[..., 1] - b2 * a1[..., 1]) / det
+        vy = (a1[..., 0] * b2 - a2[..., 0] * b1) / det
+    v = np.where(ok[..., None], np.stack([vx, vy], -1), 0.0)  # [Q, pairs, 2]
+    slack = np.einsum("qlc,qpc->qpl", a, v) - b[:, None, :]
+    tol = 1e-9 * (1.0 + np.abs(b)[:, None, :] + np.linalg.norm(a, axis=2)[:, None, :] * np.abs(v).sum(-1, keepdims=True))
+    feasible = ok & np.all((slack <= tol) | ~live[:, None, :], axis=2)
+    # Distinct vertices per cell, all cells at once: sort (cell, x, y), keep changes.
+    vr = np.round(v, 7)
+    cell = np.broadcast_to(np.arange(q)[:, None], feasible.shape)
+    cell_f, x_f, y_f = cell[feasible], vr[..., 0][feasible], vr[..., 1][feasible]
+    order = np.lexsort((y_f, x_f, cell_f))
+    cell_f, x_f, y_f = cell_f[order], x_f[order], y_f[order]
+    new = np.ones(len(cell_f), bool)
+    new[1:] = (cell_f[1:] != cell_f[:-1]) | (x_f[1:] != x_f[:-1]) | (y_f[1:] != y_f[:-1])
+    count = np.bincount(cell_f[new], minlength=q)
+    sums = np.stack([np.bincount(cell_f[new], x_f[new], minlength=q), np.bincount(cell_f[new], y_f[new], minlength=q)], 1)
+    out = sites.copy()  # a cell with no vertex cannot occur; keep the site if it ever does
+    has = count > 0
+    out[has] = sums[has] / count[has, None]
+    return out
+
+
+def world_cells(sites_m: np.ndarray, world_size: int) -> Cells:
+    """Voronoi cells of all robots over the whole world (Delaunay neighbours as competitors)."""
+    sites_m = np.asarray(sites_m, dtype=np.float64)
+    nbr, valid = delaunay_neighbours(sites_m)
+    boxes = np.broadcast_to(np.array([0.0, 0.0, world_size, world_size]), (len(sites_m), 4))
+    return Cells(sites_m, sites_m[nbr], valid, boxes)
+
+
+def voronoi_sums(prefix: ColumnPrefix, sites_m: np.ndarray, with_cost: bool = True) -> CellSums:
+    """Masses, centroids (and costs) of every robot's Voronoi cell over a whole fixed map."""
+    cells = world_cells(sites_m, prefix.width)
+    robot, column = cells.column_pairs()
+    lo, hi = cells.row_intervals(robot, column)
+    s = prefix.interval_sums(column, lo, hi, 3 if with_cost else 2)
+    return reduce_cells(cells, robot, column, s, with_cost)
 
 
 def coverage_cost(prefix: ColumnPrefix, sites_m: np.ndarray) -> float:
     """J(X) = Σ_k Σ_{q in V_k} Φ(q) |q_c - x_k|² over the whole map (m²·importance)."""
-    sites_m = np.asarray(sites_m, dtype=np.float64)
-    nbr, valid = delaunay_neighbours(sites_m)
-    columns = np.arange(prefix.width)
-    lo, hi = column_intervals(sites_m, sites_m[nbr], valid, columns, 0, prefix.height)
-    s = prefix.interval_sums(columns, lo, hi)
-    return float(moments_to_sums(sites_m, columns + 0.5, s[0], s[1], s[2])[2].sum())
+    cells = world_cells(sites_m, prefix.width)
+    robot, column = cells.column_pairs()
+    lo, hi = cells.row_intervals(robot, column)
+    s = prefix.interval_sums(column, lo, hi, 3)
+    return float(reduce_cells(cells, robot, column, s, True, with_centroids=False).cost.sum())

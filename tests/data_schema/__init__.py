@@ -1,0 +1,1 @@
+"""Tests of madp.data_schema."""

@@ -1,0 +1,36 @@
+"""The command line: rollout output and one-line errors."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def madp(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "madp.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+def test_rollout_writes_cost_and_positions(tmp_path):
+    sc = tmp_path / "s.json"
+    sc.write_text(json.dumps({"features": [{"mean": [300, 400], "sigma": 50, "peak": 0.8}],
+                              "robots": [[100, 100], [900, 900], [500, 200]]}))
+    out = tmp_path / "r.json"
+    r = madp("rollout", "--scenario", str(sc), "--controller", "dcvt", "--steps", "40", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    assert len(res["cost"]) == 41 and res["cost"][0] == 1.0
+    assert len(res["positions"]) == 3 and len(res["positions"][0]) == 2
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["rollout", "--scenario", "/nonexistent.json"], "/nonexistent.json"),
+    (["rollout", "--scenario", "{sc}", "--controller", "lpac"], "--controller"),
+])
+def test_user_errors_are_one_line(tmp_path, args, needle):
+    sc = tmp_path / "s.json"
+    sc.write_text('{"features": [], "robots": [[1, 1]]}')
+    r = madp(*[a.format(sc=sc) for a in args])
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in r.stderr
