@@ -6,11 +6,16 @@ User mistakes (a bad flag, a missing or malformed file, a wrong schema version) 
 
 from __future__ import annotations
 
-import json
 import os
+
+# The simulator's matrix products are small; BLAS threads only fight over the cores (and the
+# datagen/eval worker processes). Must be set before numpy loads; torch keeps its own threads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import json
 import sys
 from pathlib import Path
-from typing import List, Optional
+from typing import List, Optional, Tuple
 
 import typer
 
@@ -62,6 +67,104 @@ def rollout(
     _write_json(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
                f" (converged at {result.converged_at}) -> {out}")
+
+
+# --- datagen and datasets --------------------------------------------------------------------
+dataset_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Inspect, verify, convert and merge datasets.")
+app.add_typer(dataset_app, name="dataset")
+
+
+def _parse_shards(spec: Optional[str]) -> Optional[tuple[int, int]]:
+    if spec is None:
+        return None
+    try:
+        i, j = (int(v) for v in spec.split(":"))
+    except ValueError:
+        raise UserError(f"--shards: expected I:J (two integers), got {spec!r}") from None
+    return i, j
+
+
+@app.command()
+def datagen(
+    n: int = typer.Option(..., "--n", help="Number of samples in total (split 70/20/10 by episode)."),
+    out: Path = typer.Option(Path("data"), help="Dataset directory."),
+    format: str = typer.Option("mcap", "--format", help="mcap | parquet"),
+    workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores). Never changes the bytes."),
+    seed: int = typer.Option(0, min=0, help="Dataset seed."),
+    num_robots: int = typer.Option(32, min=1, help="N, robots per swarm."),
+    num_features: int = typer.Option(32, min=1, help="F, Gaussian features per map."),
+    sigma: Tuple[float, float] = typer.Option((40.0, 60.0), help="σ range of the features (m)."),
+    peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range of the features."),
+    comm_radius: float = typer.Option(256.0, help="Communication radius r_c (m)."),
+    world_size: int = typer.Option(1024, help="World side (m); 1 m cells."),
+    samples_per_shard: int = typer.Option(512, min=1, help="Samples per shard (the last of a split holds the rest)."),
+    shards: Optional[str] = typer.Option(None, help="Run only shard tasks I:J of the plan (merge parts later)."),
+    overwrite: bool = typer.Option(False, help="Replace a directory made with other parameters."),
+) -> None:
+    """Generate (U0, X, O) samples from clairvoyant-CVT rollouts as MCAP or Parquet shards."""
+    from madp.datagen import DatagenConfig, run_datagen
+    from madp.sim import SimParams
+
+    params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
+                       sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
+    cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params)
+    run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite)
+
+
+@dataset_app.command("info")
+def dataset_info_cmd(root: Path = typer.Argument(..., help="Dataset directory."),
+                     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of a table.")) -> None:
+    """Counts, sizes, parameters and action statistics."""
+    from madp.data_schema.dataset import dataset_info
+
+    info = dataset_info(root)
+    if json_out:
+        typer.echo(json.dumps(info, indent=1))
+        return
+    typer.echo(f"{info['root']}: {info['num_samples']} samples, N = {info['num_robots']}, {info['format']}, "
+               f"schema v{info['schema_version']}, code {info['code_version']}")
+    typer.echo(f"  {'split':<6}{'samples':>9}{'episodes':>10}{'shards':>8}{'MB':>10}")
+    for name in ("train", "val", "test"):
+        s = info["splits"][name]
+        typer.echo(f"  {name:<6}{s['samples']:>9}{s['episodes']:>10}{s['shards']:>8}{s['bytes'] / 1e6:>10.1f}")
+    typer.echo(f"  {info['bytes'] / 1e6:.1f} MB on disk, {info['bytes_per_sample'] / 1e3:.1f} kB per sample")
+    st = info["action_stats"]
+    if st:
+        typer.echo(f"  actions (train): mean {st['mean'][0]:+.4f} {st['mean'][1]:+.4f} m/s, "
+                   f"std {st['std'][0]:.4f} {st['std'][1]:.4f} m/s over {st['count']} robot-samples")
+    typer.echo(f"  made by: {info['created_by']}")
+
+
+@dataset_app.command("verify")
+def dataset_verify_cmd(root: Path = typer.Argument(..., help="Dataset directory.")) -> None:
+    """Checksums of every shard and a full decode of every sample; non-zero exit naming any fault."""
+    from madp.data_schema.dataset import verify_dataset
+
+    n = verify_dataset(root)
+    typer.echo(f"{root}: ok, {n} samples verified")
+
+
+@dataset_app.command("convert")
+def dataset_convert_cmd(root: Path = typer.Argument(..., help="Dataset directory."),
+                        to: str = typer.Option(..., "--to", help="mcap | parquet"),
+                        out: Path = typer.Option(..., help="Directory for the converted dataset."),
+                        overwrite: bool = typer.Option(False, help="Allow a non-empty --out.")) -> None:
+    """Re-encode a dataset (same samples, same manifest content)."""
+    from madp.data_schema.dataset import convert_dataset
+
+    m = convert_dataset(root, to, out, overwrite)
+    typer.echo(f"{root} -> {out}: {m.num_samples} samples as {m.format}")
+
+
+@dataset_app.command("merge")
+def dataset_merge_cmd(parts: List[Path] = typer.Argument(..., help="Part directories made with --shards."),
+                      out: Path = typer.Option(..., help="Merged dataset directory.")) -> None:
+    """Combine parts generated with ``madp datagen --shards I:J`` into one dataset."""
+    from madp.datagen import merge_parts
+
+    m = merge_parts(parts, out)
+    if m is not None:
+        typer.echo(f"merged {len(parts)} part(s) -> {out}: {m.num_samples} samples")
 
 
 # --- benchmarks ------------------------------------------------------------------------------

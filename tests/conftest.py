@@ -1,6 +1,8 @@
 """Shared test fixtures: where the reference data beside the repository lives."""
 
 import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the CLI does: small products, no BLAS threads
 from pathlib import Path
 
 import pytest

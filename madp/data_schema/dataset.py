@@ -1,0 +1,106 @@
+"""A dataset directory as a whole: ``manifest.json`` plus its shards. Info, verification, conversion."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+from typing import Callable, Iterator, Optional
+
+import numpy as np
+
+from .manifest import MANIFEST_FILENAME, Manifest, ShardInfo, SplitInfo
+from .schema import DataError, SampleBatch
+from .shard_io import convert_shard, iter_shard
+
+
+def open_dataset(root: os.PathLike | str) -> Manifest:
+    """Load and validate ``root/manifest.json`` (one-line DataError naming the file otherwise)."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DataError.at(root, "is not a dataset directory")
+    return Manifest.load(root / MANIFEST_FILENAME)
+
+
+def iter_split(root: os.PathLike | str, manifest: Manifest, split: str, batch_size: int = 256) -> Iterator[SampleBatch]:
+    for p in manifest.shard_paths(split, root):
+        yield from iter_shard(p, manifest.format, batch_size=batch_size)
+
+
+def dataset_info(root: os.PathLike | str) -> dict:
+    """Counts, sizes, parameters and statistics of a dataset, as a JSON-able dict."""
+    m = open_dataset(root)
+    splits = {}
+    for name, sp in m.splits.items():
+        size = sum(s.bytes for s in sp.shards)
+        splits[name] = {"samples": sp.num_samples, "episodes": sp.num_episodes, "shards": len(sp.shards),
+                        "bytes": size}
+    total = sum(s["bytes"] for s in splits.values())
+    return {
+        "root": str(root),
+        "format": m.format,
+        "schema_version": m.schema_version,
+        "code_version": m.code_version,
+        "num_robots": m.num_robots,
+        "num_samples": m.num_samples,
+        "bytes": total,
+        "bytes_per_sample": total / max(m.num_samples, 1),
+        "splits": splits,
+        "action_stats": m.action_stats.to_dict() if m.action_stats else None,
+        "params": m.params,
+        "created_by": m.created_by,
+    }
+
+
+def verify_dataset(root: os.PathLike | str, on_shard: Optional[Callable[[Path], None]] = None) -> int:
+    """Check every shard's size and sha256, then decode every sample and check counts and values.
+
+    Returns the number of samples verified; raises DataError naming the first faulty file.
+    """
+    root = Path(root)
+    m = open_dataset(root)
+    m.verify_shards(root, check_sha256=True)
+    total = 0
+    for split, sp in m.splits.items():
+        for shard in sp.shards:
+            path = root / shard.file
+            n, episodes = 0, set()
+            for b in iter_shard(path, m.format):
+                if b.num_robots != m.num_robots:
+                    raise DataError.at(path, f"holds {b.num_robots} robots per sample, manifest says {m.num_robots}")
+                for name in ("actions", "positions", "observations"):
+                    if not np.isfinite(getattr(b, name)).all():
+                        raise DataError.at(path, f"field '{name}' holds NaN or infinity")
+                n += b.num_samples
+                episodes.update(np.unique(b.episode_id).tolist())
+            if n != shard.num_samples or len(episodes) != shard.num_episodes:
+                raise DataError.at(path, f"holds {n} samples in {len(episodes)} episodes, manifest says "
+                                         f"{shard.num_samples} in {shard.num_episodes}")
+            total += n
+            if on_shard:
+                on_shard(path)
+    return total
+
+
+def convert_dataset(root: os.PathLike | str, fmt: str, out: os.PathLike | str, overwrite: bool = False) -> Manifest:
+    """Re-encode every shard as ``fmt`` into ``out``; the manifest keeps its content (format, file
+    names, checksums and sizes change with the encoding)."""
+    root, out = Path(root), Path(out)
+    m = open_dataset(root)
+    if fmt not in ("mcap", "parquet"):
+        raise DataError.at("--to", f"expected mcap or parquet, got {fmt!r}")
+    if out.resolve() == root.resolve():
+        raise DataError.at(out, "must differ from the source dataset directory")
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise DataError.at(out, "is not empty; choose another --out or pass --overwrite")
+    splits = {}
+    for name, sp in m.splits.items():
+        shards = []
+        for s in sp.shards:
+            dst_rel = str(Path(s.file).with_suffix("." + fmt).as_posix())
+            info = convert_shard(root / s.file, out / dst_rel)
+            shards.append(ShardInfo(dst_rel, info.num_samples, info.num_episodes, info.sha256, info.bytes))
+        splits[name] = SplitInfo(shards)
+    converted = replace(m, format=fmt, splits=splits)
+    converted.save(out / MANIFEST_FILENAME)
+    return converted
