@@ -188,6 +188,55 @@ def bench_sim_cmd(
         _write_json(out, res)
 
 
+@bench_app.command("datagen")
+def bench_datagen_cmd(
+    n: int = typer.Option(1024, "--n", min=64, help="Samples to generate for the timing."),
+    workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
+    format: str = typer.Option("mcap", "--format", help="mcap | parquet"),
+    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
+) -> None:
+    """End-to-end datagen rate at N = F = 32 and the projected time for 100k samples."""
+    from madp.datagen.bench import bench_datagen
+
+    r = bench_datagen(n, workers, format)
+    s = r["stages"]
+    typer.echo(f"stage medians (one core): expert step {s['expert_step_ms']:.2f} ms, observations "
+               f"{s['observations_ms']:.2f} ms, float16 {s['float16_ms']:.2f} ms -> {r['per_sample_ms_one_core']:.1f} ms/sample "
+               f"(library: {r['library_per_sample_ms_one_core']:.0f} ms/sample, {r['stage_speedup_vs_library']:.1f}x)")
+    typer.echo(f"datagen {n} samples ({format}): {r['wall_s']:.1f} s wall, {r['samples_per_s']:.1f} samples/s, "
+               f"{r['bytes_per_sample'] / 1e3:.1f} kB/sample")
+    typer.echo(f"projected 100k samples: {r['projected_100k_min']:.1f} min "
+               f"(library cost model: {r['library_projected_100k_h']:.1f} h)")
+    if out:
+        _write_json(out, r)
+
+
+@bench_app.command("io")
+def bench_io_cmd(
+    n: int = typer.Option(512, "--n", min=16, help="Samples of real expert rollouts to encode and read."),
+    repeats: int = typer.Option(5, min=1, help="Read passes per format (median)."),
+    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
+) -> None:
+    """Bytes per sample and decode throughput: MCAP, Parquet, and a float16 numpy memmap baseline."""
+    import tempfile
+
+    from madp.data_schema.bench import bench_io
+    from madp.datagen.bench import real_episodes
+
+    with tempfile.TemporaryDirectory() as d:
+        r = bench_io(d, repeats=repeats, episodes=real_episodes(n))
+    base = r["npy_memmap"]["read_samples_per_s"]
+    typer.echo(f"{r['num_samples']} real samples, N = {r['num_robots']}, median of {repeats} warm reads")
+    typer.echo(f"{'format':<12}{'kB/sample':>10}{'read samples/s':>16}{'vs memmap':>11}{'no-CRC samples/s':>18}")
+    for fmt in ("mcap", "parquet", "npy_memmap"):
+        x = r[fmt]
+        nocrc = f"{x['read_samples_per_s_no_crc']:>18.0f}" if "read_samples_per_s_no_crc" in x else f"{'-':>18}"
+        typer.echo(f"{fmt:<12}{x['bytes_per_sample'] / 1e3:>10.1f}{x['read_samples_per_s']:>16.0f}"
+                   f"{x['read_samples_per_s'] / base:>10.2f}x{nocrc}")
+    if out:
+        _write_json(out, r)
+
+
 def main(argv: Optional[List[str]] = None) -> None:
     """Entry point: run the app, turning user mistakes into one line and exit status 2."""
     args = sys.argv[1:] if argv is None else argv

@@ -136,6 +136,7 @@ def bench_io(
     repeats: int = 3,
     batch_size: int = 256,
     seed: int = 0,
+    episodes: Optional[list[Episode]] = None,
 ) -> dict:
     """Write ``num_samples`` synthetic samples as MCAP, Parquet and a float16 ``.npy`` memmap of
     the observations, then measure full read-and-decode throughput of each.
@@ -146,10 +147,16 @@ def bench_io(
     ``read_samples_per_s_no_crc``, reading with CRC verification off). Read rates are medians over ``repeats`` passes with a
     warm page cache; ``read_mb_per_s`` counts decoded observation bytes. The memmap only holds
     observations, the largest part of a sample, as a raw-I/O ceiling for comparison.
+    ``episodes`` replaces the synthetic data (e.g. real expert rollouts); then ``num_samples`` and
+    ``num_robots`` are taken from them.
     """
     tmp = Path(tmpdir)
     tmp.mkdir(parents=True, exist_ok=True)
-    episodes = synthetic_episodes(num_samples, num_robots, seed=seed, world_size=1024)
+    if episodes is None:
+        episodes = synthetic_episodes(num_samples, num_robots, seed=seed, world_size=1024)
+    else:
+        num_samples = sum(ep.num_steps for ep in episodes)
+        num_robots = episodes[0].num_robots
     obs_bytes_per_sample = num_robots * 4 * OBS_SIZE * OBS_SIZE * 2
     result: dict = {"num_samples": num_samples, "num_robots": num_robots, "batch_size": batch_size, "repeats": repeats}
 
