@@ -167,6 +167,37 @@ def dataset_merge_cmd(parts: List[Path] = typer.Argument(..., help="Part directo
         typer.echo(f"merged {len(parts)} part(s) -> {out}: {m.num_samples} samples")
 
 
+# --- training ----------------------------------------------------------------------------------
+@app.command()
+def train(
+    model: str = typer.Option("madp", help="madp | lpac"),
+    data: Path = typer.Option(Path("data"), help="Dataset directory (from madp datagen)."),
+    preset: str = typer.Option("cpu", help="paper (the paper's sizes) | cpu (trains on 2 cores in ~2 h)"),
+    epochs: Optional[int] = typer.Option(None, help="Override the preset's epochs."),
+    batch_size: Optional[int] = typer.Option(None, help="Override the preset's batch size (per rank)."),
+    lr: Optional[float] = typer.Option(None, help="Override the preset's learning rate."),
+    out: Optional[Path] = typer.Option(None, help="Run directory (default runs/<model>-<preset>)."),
+    resume: bool = typer.Option(False, help="Continue the run in --out from its latest checkpoint."),
+    seed: Optional[int] = typer.Option(None, help="Seed of initialisation, data order and noise."),
+    workers: Optional[int] = typer.Option(None, help="DataLoader worker processes per rank."),
+    val_samples: Optional[int] = typer.Option(None, help="Validation samples per epoch."),
+    max_steps_per_epoch: Optional[int] = typer.Option(None, help="Cap the steps of an epoch (0: whole split)."),
+    checkpoint_every: Optional[int] = typer.Option(None, help="Steps between 'latest' checkpoints."),
+    stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
+) -> None:
+    """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
+    from madp.training import resolve, train as run_train
+
+    cfg = resolve(model, preset, data=str(data), out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
+                  lr=lr, seed=seed, num_workers=workers, val_samples=val_samples,
+                  max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
+                  stop_after_steps=stop_after_steps)
+    res = run_train(cfg, resume=resume)
+    if int(os.environ.get("RANK", "0")) == 0:
+        typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "
+                   f"best val loss {res.get('best_val_loss', float('nan')):.5f} -> {cfg.out}")
+
+
 # --- benchmarks ------------------------------------------------------------------------------
 @bench_app.command("sim")
 def bench_sim_cmd(

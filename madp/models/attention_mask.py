@@ -1,0 +1,114 @@
+"""Communication graph and attention masks of a batch of swarms.
+
+Conventions: ``pos_m [B, N, 2]`` positions in metres, ``valid [B, N]`` bool marks real robots
+(False = padding, so batches can mix teams of different sizes). A boolean mask is True where
+attention is allowed (``mask[b, i, j]``: robot i may attend to robot j), which is the convention of
+``torch.nn.functional.scaled_dot_product_attention``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "pairwise_offsets",
+    "radius_adjacency",
+    "connected_components_mask",
+    "attention_mask",
+    "neighbourhood_index",
+]
+
+
+def _valid_or_default(pos_m: Tensor, valid: Tensor | None) -> Tensor:
+    if valid is None:
+        return torch.ones(pos_m.shape[:-1], dtype=torch.bool, device=pos_m.device)
+    return valid.to(dtype=torch.bool, device=pos_m.device)
+
+
+def pairwise_offsets(pos_m: Tensor) -> Tensor:
+    """``pos_m [B, N, 2]`` -> ``offsets [B, N, N, 2]`` with ``offsets[b, i, j] = x_j - x_i``.
+
+    Computed as explicit differences (not ``cdist``'s matmul trick) so the result is exactly
+    antisymmetric and exactly shift invariant whenever the shift itself is exact.
+    """
+    return pos_m.unsqueeze(-3) - pos_m.unsqueeze(-2)
+
+
+def radius_adjacency(pos_m: Tensor, radius: float, valid: Tensor | None = None,
+                     self_loops: bool = True) -> Tensor:
+    """Communication graph: ``adj [B, N, N]`` bool, True where ``||x_i - x_j|| < radius``.
+
+    Padding robots (``valid`` False) have no edges at all (not even a self loop); valid robots
+    have a self loop iff ``self_loops``.
+    """
+    valid = _valid_or_default(pos_m, valid)
+    d2 = pairwise_offsets(pos_m).square().sum(-1)
+    adj = d2 < radius * radius
+    adj = adj & valid.unsqueeze(-1) & valid.unsqueeze(-2)
+    n = pos_m.shape[-2]
+    eye = torch.eye(n, dtype=torch.bool, device=pos_m.device)
+    if self_loops:
+        adj = adj | (eye & valid.unsqueeze(-1))
+    else:
+        adj = adj & ~eye
+    return adj
+
+
+def connected_components_mask(adj: Tensor) -> Tensor:
+    """``adj [B, N, N]`` bool (symmetric) -> ``same [B, N, N]`` bool, True iff i and j are in the same
+    connected component.
+
+    Transitive closure by repeated squaring of the reflexive adjacency: after t squarings R holds
+    all pairs joined by a walk of length <= 2^t, so ceil(log2 N) boolean matmuls suffice
+    (a fixed count: no data-dependent loop, no host sync). Isolated nodes are their own component.
+    """
+    n = adj.shape[-1]
+    eye = torch.eye(n, dtype=torch.bool, device=adj.device)
+    reach = adj | eye
+    # float32 matmul counts walks; any count >= 1 means reachable. Counts are at most N, exact in fp32.
+    r = reach.float()
+    for _ in range(max(1, math.ceil(math.log2(max(n, 2))))):
+        r = (torch.matmul(r, r) > 0).float()
+    return r > 0
+
+
+def attention_mask(pos_m: Tensor, radius: float, valid: Tensor | None = None) -> Tensor:
+    """MADP attention mask ``M_att = M_W AND M_C`` (paper §III-B): ``mask [B, N, N]`` bool.
+
+    * ``M_W[i, j]``: ``||x_i - x_j|| < radius`` (includes i = j).
+    * ``M_C[i, j]``: i and j lie in the same connected component of the communication graph
+      (edges at distance < radius). With edges defined by the same radius, M_W already implies
+      M_C; the conjunction is kept as the paper defines it (and stays right if the two radii are
+      ever made to differ).
+    * Padding robots never attend and are never attended to. To keep the softmax finite their
+      row holds only the diagonal (a padding token attends to itself); their outputs are
+      meaningless and are masked out by the callers.
+    """
+    valid = _valid_or_default(pos_m, valid)
+    window = radius_adjacency(pos_m, radius, valid, self_loops=True)
+    comm = window  # the communication graph has the same radius as the attention window
+    component = connected_components_mask(comm)
+    mask = window & component
+    eye = torch.eye(pos_m.shape[-2], dtype=torch.bool, device=pos_m.device)
+    return mask | (eye & ~valid.unsqueeze(-1))
+
+
+def neighbourhood_index(rows: Tensor) -> tuple[Tensor, Tensor]:
+    """Index the members of neighbourhoods, padded to the largest one.
+
+    Args:
+        rows: ``[R, N]`` bool, ``rows[r, j]`` = robot j belongs to neighbourhood r.
+
+    Returns:
+        ``idx [R, M]`` long: the members of each neighbourhood in ascending robot order, then filler
+        indices; ``sub_valid [R, M]`` bool: which slots hold a member. ``M`` = largest membership
+        (at least 1; one host sync to learn it).
+    """
+    key = (~rows).to(torch.uint8)  # members (0) first; the stable sort keeps robot order
+    key_sorted, idx = torch.sort(key, dim=-1, stable=True)
+    sub_valid = key_sorted == 0
+    m = int(sub_valid.sum(-1).max().clamp_min(1).item()) if rows.numel() else 1
+    return idx[..., :m], sub_valid[..., :m]

@@ -1,0 +1,215 @@
+"""Micro-benchmarks of the models on random inputs (no data, no simulator).
+
+* :func:`bench_train_step`: training samples/s (median over timed steps after warm-up) for MADP or
+  LPAC-K3; for MADP also the FLOPs of one training step (forward + backward, counted by
+  ``torch.utils.flop_counter.FlopCounterMode``), this machine's float32 matmul FLOP/s measured in the
+  same run, and the achieved fraction of it.
+* :func:`bench_infer`: median latency of one MADP control step (CNN + encoder once, decoder S times)
+  in decentralized or centralized-masked mode.
+
+Run ``python -m madp.models.bench`` for the default table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from typing import Any
+
+import torch
+
+from .config import lpac_config, madp_config
+from .madp import MADP
+
+__all__ = ["bench_train_step", "bench_infer", "matmul_flops_per_s", "random_swarm"]
+
+
+def random_swarm(batch: int, num_robots: int, world: float = 1024.0, generator: torch.Generator | None = None,
+                 device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Random ``obs [B, N, 4, 32, 32]``, ``pos_m [B, N, 2]`` uniform over the world, ``actions [B, N, 2]``."""
+    obs = torch.rand(batch, num_robots, 4, 32, 32, generator=generator).to(device)
+    pos = (torch.rand(batch, num_robots, 2, generator=generator) * world).to(device)
+    act = torch.randn(batch, num_robots, 2, generator=generator).to(device)
+    return obs, pos, act
+
+
+def matmul_flops_per_s(n: int = 2048, reps: int = 10, device: torch.device | str = "cpu") -> float:
+    """Median float32 FLOP/s of an ``n x n @ n x n`` matmul (2 n^3 FLOPs) on this machine."""
+    a = torch.randn(n, n, device=device)
+    b = torch.randn(n, n, device=device)
+    for _ in range(2):
+        a @ b
+    times = []
+    for _ in range(reps):
+        _sync(device)
+        t = time.perf_counter()
+        a @ b
+        _sync(device)
+        times.append(time.perf_counter() - t)
+    return 2 * n**3 / statistics.median(times)
+
+
+def _sync(device: torch.device | str) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize()
+
+
+def _count_flops(fn) -> int:
+    """FLOPs of ``fn()`` by ``FlopCounterMode``. Its default table knows the CUDA attention kernels but
+    not the CPU flash-attention op that ``scaled_dot_product_attention`` dispatches to here, so that
+    op (forward and backward) is mapped to the same formulas."""
+    from torch.utils import flop_counter as fc
+
+    def fwd_flops(q, k, v, *args, out_shape=None, **kwargs) -> int:  # receives shapes
+        return fc.sdpa_flop_count(q, k, v)
+
+    def bwd_flops(grad_out, q, k, v, *args, out_shape=None, **kwargs) -> int:
+        return fc.sdpa_backward_flop_count(grad_out, q, k, v)
+
+    aten = torch.ops.aten
+    custom = {}
+    if hasattr(aten, "_scaled_dot_product_flash_attention_for_cpu"):
+        custom[aten._scaled_dot_product_flash_attention_for_cpu] = fwd_flops
+    if hasattr(aten, "_scaled_dot_product_flash_attention_for_cpu_backward"):
+        custom[aten._scaled_dot_product_flash_attention_for_cpu_backward] = bwd_flops
+    with fc.FlopCounterMode(display=False, custom_mapping=custom) as counter:
+        fn()
+    return int(counter.get_total_flops())
+
+
+def bench_train_step(model_name: str = "madp", preset: str = "cpu", batch_size: int = 32, num_robots: int = 32,
+                     steps: int = 5, warmup: int = 2, device: torch.device | str = "cpu",
+                     measure_matmul: bool = True, seed: int = 0) -> dict[str, Any]:
+    """Training throughput of one model on random data (AdamW step included).
+
+    Returns a dict with ``samples_per_s`` (median), ``step_s`` (median seconds per step),
+    ``params``; for MADP also ``flops_per_step`` (forward + backward, FlopCounterMode: matmuls,
+    convolutions and attention), ``achieved_flops_per_s``, ``matmul_flops_per_s`` (this machine,
+    measured in the same run) and ``fraction_of_matmul``.
+    """
+    torch.manual_seed(seed)
+    g = torch.Generator().manual_seed(seed)
+    if model_name == "madp":
+        model = MADP(madp_config(preset)).to(device)
+    elif model_name == "lpac":
+        from .lpac import LPAC  # imports torch_geometric
+
+        model = LPAC(lpac_config(preset)).to(device)
+    else:
+        raise ValueError("model_name must be 'madp' or 'lpac'")
+    model.train()
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+    obs, pos, act = random_swarm(batch_size, num_robots, generator=g, device=device)
+
+    def step() -> None:
+        opt.zero_grad(set_to_none=True)
+        loss = model.loss(obs, pos, act)
+        loss.backward()
+        opt.step()
+
+    for _ in range(warmup):
+        step()
+    times = []
+    for _ in range(steps):
+        _sync(device)
+        t = time.perf_counter()
+        step()
+        _sync(device)
+        times.append(time.perf_counter() - t)
+    step_s = statistics.median(times)
+    out: dict[str, Any] = {
+        "model": model_name, "preset": preset, "batch_size": batch_size, "num_robots": num_robots,
+        "threads": torch.get_num_threads(), "device": str(device), "params": model.num_parameters(),
+        "steps": steps, "step_s": step_s, "samples_per_s": batch_size / step_s,
+    }
+    if model_name == "madp":
+        def fwd_bwd() -> None:
+            opt.zero_grad(set_to_none=True)
+            model.loss(obs, pos, act).backward()
+
+        flops = _count_flops(fwd_bwd)
+        opt.zero_grad(set_to_none=True)
+        out["flops_per_step"] = flops
+        out["achieved_flops_per_s"] = flops / step_s
+        if measure_matmul:
+            mm = matmul_flops_per_s(device=device)
+            out["matmul_flops_per_s"] = mm
+            out["fraction_of_matmul"] = flops / step_s / mm
+    return out
+
+
+def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int = 50, num_robots: int = 32,
+                repeats: int = 5, warmup: int = 1, eta: float = 0.0, layout: str = "uniform",
+                dedupe: bool = True, device: torch.device | str = "cpu", seed: int = 0) -> dict[str, Any]:
+    """Median latency of one MADP control step for one swarm of ``num_robots`` robots
+    (``mode``: ``"decentralized"`` or ``"centralized"``).
+
+    ``layout``: ``"uniform"`` over the 1024 m world (the usual launch; neighbourhoods of ~5-10
+    robots) or ``"square"`` (SPEC §5's square launch, x, y in [115.25, 217.25]: everyone within
+    r_c of everyone, the worst case for decentralized execution, M = N). ``dedupe`` is passed to
+    :meth:`MADP.sample_decentralized` (False: every robot's neighbourhood is computed, even when
+    several coincide). Also reports the largest and mean neighbourhood size (tokens per
+    neighbourhood batch in decentralized mode).
+    """
+    if mode not in ("decentralized", "centralized"):
+        raise ValueError("mode must be 'decentralized' or 'centralized'")
+    torch.manual_seed(seed)
+    g = torch.Generator().manual_seed(seed)
+    model = MADP(madp_config(preset)).to(device).eval()
+    obs, pos, _ = random_swarm(1, num_robots, generator=g, device=device)
+    if layout == "square":
+        pos = 115.25 + pos / 1024.0 * (217.25 - 115.25)
+    elif layout != "uniform":
+        raise ValueError("layout must be 'uniform' or 'square'")
+    with torch.inference_mode():
+        mask = model.attention_mask(pos)
+        max_hood = int(mask.sum(-1).max())
+        mean_hood = float(mask.sum(-1).float().mean())
+
+    def run() -> None:
+        with torch.inference_mode():
+            if mode == "decentralized":
+                model.sample_decentralized(obs[0], pos[0], num_steps=num_steps, eta=eta, dedupe=dedupe)
+            else:
+                model.sample(obs, pos, num_steps=num_steps, eta=eta)
+
+    for _ in range(warmup):
+        run()
+    times = []
+    for _ in range(repeats):
+        _sync(device)
+        t = time.perf_counter()
+        run()
+        _sync(device)
+        times.append(time.perf_counter() - t)
+    return {
+        "preset": preset, "mode": mode, "layout": layout, "dedupe": dedupe, "num_steps": num_steps, "num_robots": num_robots,
+        "threads": torch.get_num_threads(), "device": str(device),
+        "latency_s": statistics.median(times), "latency_min_s": min(times), "latency_max_s": max(times),
+        "max_neighbourhood": max_hood, "mean_neighbourhood": mean_hood,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description="madp model micro-benchmarks")
+    p.add_argument("--preset", default="cpu")
+    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--steps", type=int, default=5)
+    p.add_argument("--num-robots", type=int, default=32)
+    args = p.parse_args(argv)
+    results = [
+        bench_train_step("madp", args.preset, args.batch_size, args.num_robots, steps=args.steps),
+        bench_train_step("lpac", args.preset, args.batch_size, args.num_robots, steps=args.steps),
+        bench_infer(args.preset, "decentralized", num_robots=args.num_robots),
+        bench_infer(args.preset, "decentralized", num_robots=args.num_robots, layout="square"),
+        bench_infer(args.preset, "decentralized", num_robots=args.num_robots, layout="square", dedupe=False),
+        bench_infer(args.preset, "centralized", num_robots=args.num_robots),
+    ]
+    for r in results:
+        print(json.dumps(r))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,348 @@
+"""MADP: multi-agent diffusion policy (paper §III).
+
+Per robot i: ``O_i [4, 32, 32] --CNN--> z_i [32]``; token ``[z_i, p_i] [34]`` (``p_i``: see below)
+``--Linear--> [d_model]``; the spatial-transformer encoder Psi_E turns the tokens into a memory
+(once per control step). The decoder Psi_D maps noisy normalised actions ``U_k [N, 2]`` plus an
+embedding of the diffusion step k, cross-attending to the memory, to the predicted noise
+``eps_hat [N, 2]``; DDIM runs it S times.
+
+Position feature ``p_i`` (``config.pos_token``). The paper writes the token as ``[z_i, x_i]`` with
+the absolute position, yet argues the spatial transformer is shift equivariant; an absolute
+position in the token would break that. Here positions reach attention through RoPE (relative by
+construction), and the token carries ``p_i = (x_i - mean_{j in M_i} x_j) / r_c``, robot i's offset
+from the centroid of its own attention neighbourhood ``M_i`` (incl. itself): shift invariant,
+permutation equivariant, local (robot i knows its neighbours' positions) and bounded in (-1, 1).
+``pos_token="none"`` puts zeros there (positions only through RoPE).
+
+Shapes: ``obs [B, N, 4, 32, 32]``, ``pos_m [B, N, 2]`` (metres), ``valid [B, N]`` bool (False =
+padding robot; None = all valid), ``actions_norm [B, N, 2]`` (normalised by the dataset's action
+statistics, see :meth:`MADP.normalize_actions`), ``mask [B, N, N]`` bool, ``memory [B, N, d_model]``,
+``k [B]`` long diffusion steps in 1..K.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+
+from .attention_mask import attention_mask, neighbourhood_index, pairwise_offsets
+from .config import MADPConfig
+from .diffusion import DDPMSchedule
+from .perception import PerceptionCNN, apply_per_robot
+from .transformer import RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTransformerEncoder
+
+__all__ = ["MADP", "TimestepEmbedding"]
+
+
+class TimestepEmbedding(nn.Module):
+    """Diffusion step ``k [B]`` -> ``[B, d_model]``: sinusoidal features (transformer style, max
+    period 10^4 in units of k) -> Linear -> LeakyReLU -> Linear."""
+
+    def __init__(self, dim: int, d_model: int, leaky_slope: float = 0.01):
+        super().__init__()
+        if dim % 2:
+            raise ValueError("time embedding dim must be even")
+        self.dim = dim
+        self.mlp = nn.Sequential(nn.Linear(dim, 4 * d_model), nn.LeakyReLU(leaky_slope), nn.Linear(4 * d_model, d_model))
+
+    def sinusoidal(self, k: Tensor) -> Tensor:
+        half = self.dim // 2
+        freqs = torch.exp(-math.log(10000.0) * torch.arange(half, device=k.device, dtype=torch.float32) / half)
+        args = k.float().unsqueeze(-1) * freqs
+        return torch.cat([args.sin(), args.cos()], dim=-1)
+
+    def forward(self, k: Tensor) -> Tensor:
+        w = self.mlp[0].weight
+        return self.mlp(self.sinusoidal(k).to(w.dtype))
+
+
+class MADP(nn.Module):
+    """Multi-agent diffusion policy (encoder once, decoder S times).
+
+    Main entry points:
+
+    * ``loss(obs, pos_m, actions_norm, valid=None, generator=None)`` (= ``forward``): DDPM
+      epsilon-MSE over valid robots.
+    * ``sample(obs, pos_m, num_steps=50, eta=0.0, ...)``: *centralized-masked* sampling, the whole
+      swarm in one pass with the attention mask (a fast approximation of decentralized execution:
+      information can travel several hops through the layers).
+    * ``sample_decentralized(obs, pos_m, ...)``: *decentralized* execution: every robot runs the model
+      on its own neighbourhood (itself + the robots in its attention mask) and keeps only its own
+      action; all N neighbourhoods run as one padded batch.
+    """
+
+    def __init__(self, config: MADPConfig | None = None):
+        super().__init__()
+        cfg = config or MADPConfig()
+        self.config = cfg
+        self.cnn = PerceptionCNN(cfg.obs_channels, cfg.obs_size, cfg.cnn_channels, cfg.cnn_kernel, cfg.cnn_stride,
+                                 cfg.cnn_padding, cfg.cnn_norm, cfg.z_dim, cfg.leaky_slope)
+        self.token_proj = nn.Linear(cfg.token_dim, cfg.d_model)
+        self.rope = RotaryEmbedding2D(cfg.head_dim, cfg.rope_tau)
+        self.encoder = SpatialTransformerEncoder(cfg.d_model, cfg.n_heads, cfg.n_enc_layers, cfg.mlp_ratio,
+                                                 cfg.dropout, cfg.leaky_slope, cfg.rope_layers)
+        self.action_in = nn.Linear(cfg.action_dim, cfg.d_model)
+        self.time_embed = TimestepEmbedding(cfg.time_embed_dim or cfg.d_model, cfg.d_model, cfg.leaky_slope)
+        self.decoder = SpatialTransformerDecoder(cfg.d_model, cfg.n_heads, cfg.n_dec_layers, cfg.mlp_ratio,
+                                                 cfg.dropout, cfg.leaky_slope, cfg.rope_layers)
+        self.head = nn.Linear(cfg.d_model, cfg.action_dim)
+        self.schedule = DDPMSchedule(cfg.num_train_steps, cfg.beta_start, cfg.beta_end)
+        self.register_buffer("action_mean", torch.zeros(cfg.action_dim))
+        self.register_buffer("action_std", torch.ones(cfg.action_dim))
+        self._init_weights()
+
+    # ------------------------------------------------------------------------------------ set-up
+    def _init_weights(self) -> None:
+        """nanoGPT-style: Linear ~ N(0, 0.02), zero bias; residual-branch output projections scaled
+        by 1/sqrt(2 L) with L the total number of transformer layers. Convs keep PyTorch's init."""
+        n_layers = self.config.n_enc_layers + self.config.n_dec_layers
+        for m in self.modules():
+            if isinstance(m, nn.Linear):
+                std = 0.02 / math.sqrt(2 * n_layers) if getattr(m, "is_residual_proj", False) else 0.02
+                nn.init.normal_(m.weight, 0.0, std)
+                if m.bias is not None:
+                    nn.init.zeros_(m.bias)
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.head.weight.dtype
+
+    # ------------------------------------------------------------------------- action statistics
+    def set_action_stats(self, mean: Tensor, std: Tensor) -> None:
+        """Store the dataset's action statistics ``mean [2]``, ``std [2]`` (m/s) in the buffers."""
+        self.action_mean.copy_(torch.as_tensor(mean, dtype=self.action_mean.dtype))
+        self.action_std.copy_(torch.as_tensor(std, dtype=self.action_std.dtype))
+
+    def normalize_actions(self, u: Tensor) -> Tensor:
+        """``u [..., 2]`` m/s -> normalised ``(u - mean) / std``."""
+        return (u - self.action_mean) / self.action_std
+
+    def denormalize_actions(self, u_norm: Tensor) -> Tensor:
+        """normalised ``[..., 2]`` -> m/s."""
+        return u_norm * self.action_std + self.action_mean
+
+    # -------------------------------------------------------------------------------- conditioning
+    def attention_mask(self, pos_m: Tensor, valid: Tensor | None = None) -> Tensor:
+        """``[B, N, N]`` bool: distance < r_c AND same communication component; see
+        :func:`madp.models.attention_mask.attention_mask`."""
+        return attention_mask(pos_m, self.config.comm_radius, valid)
+
+    def embed_tokens(self, obs: Tensor, pos_m: Tensor, mask: Tensor, valid: Tensor | None = None) -> Tensor:
+        """What each robot computes for itself and shares: ``tokens [B, N, 34] = [z_i, p_i]``.
+
+        ``z_i = CNN(O_i)``; ``p_i`` the neighbourhood offset (module docstring). Padding rows are 0.
+        """
+        cfg = self.config
+        z = apply_per_robot(self.cnn, obs.to(self.dtype), valid, cfg.z_dim)
+        if cfg.pos_token == "neighbourhood_offset":
+            w = mask.to(pos_m.dtype)  # padding columns are already False (except a padding row's diagonal)
+            off = pairwise_offsets(pos_m)  # [B, N, N, 2], x_j - x_i
+            p = -(w.unsqueeze(-1) * off).sum(-2) / w.sum(-1, keepdim=True).clamp_min(1)
+            p = (p / cfg.comm_radius).to(z.dtype)
+        else:
+            p = z.new_zeros(*z.shape[:-1], 2)
+        tokens = torch.cat([z, p], dim=-1)
+        if valid is not None:
+            tokens = tokens * valid.unsqueeze(-1).to(tokens.dtype)
+        return tokens
+
+    def encode_tokens(self, tokens: Tensor, pos_m: Tensor, mask: Tensor) -> Tensor:
+        """Psi_E: ``tokens [B, N, 34]`` -> ``memory [B, N, d_model]``."""
+        rope = self.rope(pos_m, self.dtype)
+        return self.encoder(self.token_proj(tokens), mask, rope)
+
+    def encode(self, obs: Tensor, pos_m: Tensor, valid: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """CNN + encoder, once per control step: ``-> (memory [B, N, d_model], mask [B, N, N])``."""
+        mask = self.attention_mask(pos_m, valid)
+        tokens = self.embed_tokens(obs, pos_m, mask, valid)
+        return self.encode_tokens(tokens, pos_m, mask), mask
+
+    # ---------------------------------------------------------------------------------- denoising
+    def _denoise(self, x: Tensor, k: Tensor | int, memory_kv: list, rope, mask: Tensor) -> Tensor:
+        b = x.shape[0]
+        if not isinstance(k, Tensor) or k.dim() == 0:
+            k = torch.full((b,), int(k), device=x.device, dtype=torch.long)
+        h = self.action_in(x.to(self.dtype)) + self.time_embed(k).unsqueeze(1)
+        return self.head(self.decoder(h, mask, rope, memory_kv))
+
+    def denoise(self, noisy_actions: Tensor, k: Tensor | int, memory: Tensor, pos_m: Tensor, mask: Tensor,
+                valid: Tensor | None = None) -> Tensor:
+        """Psi_D: ``noisy_actions [B, N, 2]``, ``k [B]`` (or int) -> ``eps_hat [B, N, 2]`` (0 at padding)."""
+        rope = self.rope(pos_m, self.dtype)
+        eps = self._denoise(noisy_actions, k, self.decoder.memory_kv(memory, rope), rope, mask)
+        if valid is not None:
+            eps = eps * valid.unsqueeze(-1).to(eps.dtype)
+        return eps
+
+    # ----------------------------------------------------------------------------------- training
+    def loss(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None,
+             generator: torch.Generator | None = None, k: Tensor | None = None,
+             noise: Tensor | None = None) -> Tensor:
+        """DDPM loss ``E ||eps - eps_hat(U_k, O; k)||^2``: mean over valid robots and action dims.
+
+        ``k ~ U{1..K}`` per sample and ``noise ~ N(0, I)`` are drawn with ``generator`` (which must
+        live on the tensors' device) unless given.
+        """
+        b = actions_norm.shape[0]
+        actions_norm = actions_norm.to(self.dtype)
+        memory, mask = self.encode(obs, pos_m, valid)
+        if k is None:
+            k = self.schedule.sample_timesteps(b, actions_norm.device, generator)
+        if noise is None:
+            noise = torch.randn(actions_norm.shape, generator=generator, device=actions_norm.device,
+                                dtype=actions_norm.dtype)
+        x_k = self.schedule.add_noise(actions_norm, noise, k)
+        eps_hat = self.denoise(x_k, k, memory, pos_m, mask)
+        err = (eps_hat - noise).square()
+        if valid is None:
+            return err.mean()
+        w = valid.unsqueeze(-1).to(err.dtype)
+        return (err * w).sum() / (w.sum() * err.shape[-1]).clamp_min(1)
+
+    def forward(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None,
+                generator: torch.Generator | None = None) -> Tensor:
+        """Training loss (see :meth:`loss`); ``forward`` so that DDP/compile wrappers see it."""
+        return self.loss(obs, pos_m, actions_norm, valid, generator)
+
+    # ----------------------------------------------------------------------------------- sampling
+    def _ddim(self, memory: Tensor, pos_m: Tensor, mask: Tensor, x: Tensor, num_steps: int, eta: float,
+              step_noise: Callable[[int], Tensor] | None, clip_x0: float | None) -> Tensor:
+        """Algorithm 1 loop: ``x = U_{k_S} [B, N, 2]`` -> ``U_0``. The memory's cross-attention K/V and
+        the RoPE angles are computed once and reused for all S decoder passes."""
+        rope = self.rope(pos_m, self.dtype)
+        memory_kv = self.decoder.memory_kv(memory, rope)
+        seq = self.schedule.ddim_timesteps(num_steps).tolist()
+        for i in range(num_steps):
+            k, k_prev = seq[i], seq[i + 1]
+            eps = self._denoise(x, k, memory_kv, rope, mask)
+            noise = step_noise(i) if (eta > 0 and step_noise is not None) else None
+            x = self.schedule.step(eps, k, x, eta=eta, prev_k=k_prev, noise=noise, clip_x0=clip_x0)
+        return x
+
+    @torch.no_grad()
+    def sample(self, obs: Tensor, pos_m: Tensor, num_steps: int = 50, eta: float = 0.0,
+               generator: torch.Generator | None = None, valid: Tensor | None = None,
+               noise: Tensor | None = None, step_noise: Tensor | None = None,
+               clip_x0: float | None = None) -> Tensor:
+        """Centralized-masked DDIM sampling of the whole swarm -> ``actions_norm [B, N, 2]``.
+
+        Args:
+            num_steps: S DDIM steps (paper: 50); eta: DDIM noise scale in [0, 1].
+            generator: draws ``U_K`` and (eta > 0) the per-step noise, in that order, each step
+                one ``[B, N, 2]`` draw; must be on the tensors' device.
+            noise: optional ``U_K [B, N, 2]``; step_noise: optional ``[S, B, N, 2]``.
+        Padding rows of the result are 0.
+        """
+        b, n = pos_m.shape[:2]
+        memory, mask = self.encode(obs, pos_m, valid)
+        shape = (b, n, self.config.action_dim)
+        if noise is None:
+            noise = torch.randn(shape, generator=generator, device=memory.device, dtype=memory.dtype)
+
+        def draw(i: int) -> Tensor:
+            if step_noise is not None:
+                return step_noise[i]
+            return torch.randn(shape, generator=generator, device=memory.device, dtype=memory.dtype)
+
+        x = self._ddim(memory, pos_m, mask, noise.to(memory.dtype), num_steps, eta, draw, clip_x0)
+        if valid is not None:
+            x = x * valid.unsqueeze(-1).to(x.dtype)
+        return x
+
+    @torch.no_grad()
+    def sample_decentralized(self, obs: Tensor, pos_m: Tensor, num_steps: int = 50, eta: float = 0.0,
+                             generator: torch.Generator | None = None, valid: Tensor | None = None,
+                             noise: Tensor | None = None, step_noise: Tensor | None = None,
+                             independent_noise: bool = False, dedupe: bool = True,
+                             clip_x0: float | None = None) -> Tensor:
+        """Decentralized DDIM sampling: ``obs [N, 4, 32, 32]``, ``pos_m [N, 2]`` -> ``actions_norm [N, 2]``
+        (a leading batch dimension ``[B, N, ...]`` is accepted too).
+
+        What each robot does, as in the paper's Fig. 1: robot j computes its own token
+        ``[z_j, p_j]`` (its CNN on its own observation, its neighbourhood offset) and shares it with
+        the robots in range. Robot i then runs the encoder once and the decoder S times on the tokens
+        of its neighbourhood ``M_i`` (itself + the robots in row i of the attention mask, with the
+        mask recomputed among just those robots) and keeps only its own action.
+
+        All neighbourhoods run as one padded batch ``[U, M, ...]`` (M = largest neighbourhood,
+        ``valid`` marking real slots); nothing loops over robots.
+
+        Noise: by default the noise of robot j is the same in every neighbourhood that contains j
+        (``U_K`` and each step's noise are drawn once per swarm, ``[B, N, 2]``, and gathered), as if
+        the robots derived each other's noise from a shared seed and robot id. Where neighbourhoods
+        are the whole swarm the result equals :meth:`sample` with the same generator/noise.
+        ``independent_noise=True`` draws every robot's neighbourhood noise separately (``noise`` /
+        ``step_noise`` are then not accepted).
+
+        ``dedupe`` (only with shared noise): robots whose neighbourhoods are the same set of robots
+        would run exactly the same computation (the model is permutation equivariant), so each
+        distinct neighbourhood is computed once (U = number of distinct neighbourhoods <= N) and
+        every member reads its own action from it. Results equal ``dedupe=False`` up to float
+        rounding; in a fully connected swarm this is N times less work.
+        """
+        single = pos_m.dim() == 2
+        if single:
+            obs, pos_m = obs.unsqueeze(0), pos_m.unsqueeze(0)
+            valid = valid.unsqueeze(0) if valid is not None else None
+            noise = noise.unsqueeze(0) if noise is not None else None
+            step_noise = step_noise.unsqueeze(1) if step_noise is not None else None
+        if independent_noise and (noise is not None or step_noise is not None):
+            raise ValueError("noise/step_noise are swarm-level; they cannot be combined with independent_noise")
+        b, n = pos_m.shape[:2]
+        dev = pos_m.device
+        if valid is None:
+            valid = torch.ones(b, n, dtype=torch.bool, device=dev)
+        valid = valid.to(torch.bool)
+        mask = self.attention_mask(pos_m, valid)
+        tokens = self.embed_tokens(obs, pos_m, mask, valid)  # [B, N, 34], one per robot
+
+        # neighbourhood membership per ego; padding egos get an empty neighbourhood
+        rows = (mask & valid.unsqueeze(-1)).reshape(b * n, n)
+        ego_batch = torch.arange(b, device=dev).repeat_interleave(n)
+        if dedupe and not independent_noise:
+            key = torch.cat([ego_batch.unsqueeze(1), rows.long()], dim=1)
+            uniq, unit_of_ego = torch.unique(key, dim=0, return_inverse=True)
+            unit_batch, unit_rows = uniq[:, 0], uniq[:, 1:].bool()
+        else:
+            unit_of_ego = torch.arange(b * n, device=dev)
+            unit_batch, unit_rows = ego_batch, rows
+        idx, unit_valid = neighbourhood_index(unit_rows)  # [U, M]
+        u, m = idx.shape
+        # the ego's slot inside its neighbourhood = number of members before it
+        slot = (rows.reshape(b, n, n).long().cumsum(-1).diagonal(dim1=-2, dim2=-1) - 1).clamp_min(0).reshape(-1)
+
+        def gather(t: Tensor) -> Tensor:
+            """``[B, N, *F] -> [U, M, *F]``: the neighbourhood copies of per-robot data."""
+            return t[unit_batch.unsqueeze(1), idx]
+
+        pos_u = gather(pos_m)
+        mask_u = self.attention_mask(pos_u, unit_valid)
+        memory = self.encode_tokens(gather(tokens), pos_u, mask_u)
+
+        dt = memory.dtype
+        swarm_shape = (b, n, self.config.action_dim)
+        unit_shape = (u, m, self.config.action_dim)
+        if independent_noise:
+            x = torch.randn(unit_shape, generator=generator, device=dev, dtype=dt)
+
+            def draw(i: int) -> Tensor:
+                return torch.randn(unit_shape, generator=generator, device=dev, dtype=dt)
+        else:
+            if noise is None:
+                noise = torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt)
+            x = gather(noise.to(dt))
+
+            def draw(i: int) -> Tensor:
+                if step_noise is not None:
+                    return gather(step_noise[i].to(dt))
+                return gather(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
+
+        x = self._ddim(memory, pos_u, mask_u, x, num_steps, eta, draw, clip_x0)
+        out = x[unit_of_ego, slot].reshape(b, n, -1) * valid.unsqueeze(-1).to(x.dtype)
+        return out[0] if single else out

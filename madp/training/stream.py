@@ -1,0 +1,114 @@
+"""Streaming the shards of one split into training, never holding the dataset in memory.
+
+Order of one epoch, a pure function of (seed, epoch) and the manifest:
+
+1. the split's shards are permuted (``default_rng([seed, epoch])``);
+2. shard j of the permutation goes to stream ``j % S``, where the S = world_size × num_workers
+   streams are the (torch.distributed rank, DataLoader worker) pairs — no sample reaches two
+   streams;
+3. each stream reads its shards in order through a shuffle buffer of ``buffer_size`` samples
+   (its own RNG, ``default_rng([seed, epoch, stream])``) and yields exactly ``per_stream`` samples,
+   the same number for every stream (the smallest stream's count rounded down to whole batches),
+   so ranks stay in lockstep; the few surplus samples of an epoch are skipped, different ones each
+   epoch.
+
+Resuming mid-epoch: the position is (epoch, samples already yielded per stream). A resumed stream
+replays its reads and buffer draws up to that point without handing the samples out (decoding
+only, no model work), then continues exactly as an uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+from madp.data_schema import Manifest, iter_shard
+
+
+@dataclass(frozen=True)
+class StreamPosition:
+    epoch: int
+    samples_per_stream: int  # already yielded by each stream in this epoch
+
+
+def stream_plan(counts: list[int], seed: int, epoch: int, num_streams: int) -> tuple[list[list[int]], int]:
+    """(shard indices per stream, samples per stream) for one epoch."""
+    order = np.random.default_rng([seed, epoch]).permutation(len(counts))
+    streams = [[int(s) for s in order[i::num_streams]] for i in range(num_streams)]
+    per_stream = min(sum(counts[s] for s in st) for st in streams)
+    return streams, per_stream
+
+
+class ShardStream(IterableDataset):
+    """Samples of one split as dicts of tensors: ``obs [N, 4, 32, 32]`` float32, ``pos_m [N, 2]``,
+    ``actions [N, 2]`` (m/s, unnormalised), and the sample's ``episode_id`` and ``step``.
+
+    ``batch_size`` only rounds each stream's count down to whole batches (so every DataLoader
+    worker hands out whole batches and every rank the same number).
+    """
+
+    def __init__(self, root: str | Path, manifest: Manifest, split: str, seed: int, batch_size: int = 1,
+                 buffer_size: int = 1024, rank: int = 0, world_size: int = 1):
+        self.root = Path(root)
+        self.format = manifest.format
+        shards = manifest.splits[split].shards
+        if not shards:
+            raise ValueError(f"{self.root}: split '{split}' has no shards")
+        self.paths = [str(self.root / s.file) for s in shards]
+        self.counts = [s.num_samples for s in shards]
+        self.seed, self.batch_size, self.buffer_size = seed, batch_size, buffer_size
+        self.rank, self.world_size = rank, world_size
+        self.position = StreamPosition(0, 0)
+
+    def set_position(self, position: StreamPosition) -> None:
+        """Start the next iteration at ``position`` (set before creating the DataLoader iterator)."""
+        self.position = position
+
+    def samples_per_stream(self, num_workers: int, epoch: int) -> int:
+        _, per = stream_plan(self.counts, self.seed, epoch, self.world_size * max(num_workers, 1))
+        return per - per % self.batch_size
+
+    def __iter__(self) -> Iterator[dict]:
+        info = get_worker_info()
+        workers, worker = (info.num_workers, info.id) if info else (1, 0)
+        stream = self.rank * workers + worker
+        epoch, skip = self.position.epoch, self.position.samples_per_stream
+        streams, per = stream_plan(self.counts, self.seed, epoch, self.world_size * workers)
+        per -= per % self.batch_size
+        rng = np.random.default_rng([self.seed, epoch, stream])
+        emitted = 0
+        buffer: list[tuple] = []
+        for sample in self._samples(streams[stream]):
+            if len(buffer) < self.buffer_size:
+                buffer.append(sample)
+                continue
+            j = int(rng.integers(len(buffer)))
+            out, buffer[j] = buffer[j], sample
+            if emitted >= per:
+                return
+            if emitted >= skip:
+                yield _to_tensors(out)
+            emitted += 1
+        while buffer and emitted < per:
+            j = int(rng.integers(len(buffer)))
+            out = buffer.pop(j)
+            if emitted >= skip:
+                yield _to_tensors(out)
+            emitted += 1
+
+    def _samples(self, shard_ids: list[int]) -> Iterator[tuple]:
+        for s in shard_ids:
+            for b in iter_shard(self.paths[s], self.format):
+                for i in range(b.num_samples):
+                    yield b.observations[i], b.positions[i], b.actions[i], b.episode_id[i], b.step[i]
+
+
+def _to_tensors(sample: tuple) -> dict:
+    obs, pos, act, episode, step = sample
+    return {"obs": torch.from_numpy(obs.astype(np.float32)), "pos_m": torch.from_numpy(np.array(pos)),
+            "actions": torch.from_numpy(np.array(act)), "episode_id": int(episode), "step": int(step)}

@@ -1,0 +1,320 @@
+"""``madp train``: stream shards into MADP or LPAC-K3; checkpoints, metrics, resume, DDP.
+
+One loop for both models (nanoGPT-style: read it top to bottom). Determinism: the data order is a
+function of (seed, epoch) (see :mod:`.stream`), the diffusion noise of step s is drawn from a
+generator seeded with (seed, s), and the checkpoint holds everything else (weights, optimizer,
+EMA, position, counters), so a resumed run continues exactly as an uninterrupted one.
+
+Run directory::
+
+    config.json            the resolved TrainConfig, model config, dataset and action statistics
+    metrics.jsonl          one line per logged step ({"step", "epoch", "loss", ...}) and per epoch
+                           ({"epoch", "val_loss", ...}); TensorBoard events too when installed
+    checkpoints/latest/    see :mod:`.checkpoint`
+    checkpoints/best/      lowest validation loss so far
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.utils.data import DataLoader
+
+from madp.data_schema.dataset import open_dataset
+from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
+
+from .checkpoint import load_checkpoint_state, save_checkpoint
+from .config import TrainConfig
+from .stream import ShardStream, StreamPosition
+
+
+# --- environment ---------------------------------------------------------------------------------
+def setup_distributed() -> tuple[int, int, torch.device]:
+    """(rank, world_size, device). Under torchrun: NCCL on GPUs, gloo on CPU."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    if torch.cuda.is_available():
+        local = int(os.environ.get("LOCAL_RANK", "0"))
+        torch.cuda.set_device(local)
+        device = torch.device("cuda", local)
+    else:
+        device = torch.device("cpu")
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+    return rank, world, device
+
+
+def build_model(cfg: TrainConfig, num_robots: int) -> torch.nn.Module:
+    if cfg.model == "madp":
+        return MADP(madp_config(cfg.preset))
+    return LPAC(lpac_config(cfg.preset))
+
+
+def step_generator(seed: int, step: int, device: torch.device, stream: int = 0) -> torch.Generator:
+    """The generator of training step ``step`` (stream 0) or validation batch ``step`` (stream 1)."""
+    g = torch.Generator(device=device)
+    g.manual_seed(int(np.random.SeedSequence([seed, stream, step]).generate_state(1, np.uint64)[0] >> 1))
+    return g
+
+
+def batch_loss(model, raw, batch: dict, cfg: TrainConfig, generator: torch.Generator, device) -> torch.Tensor:
+    obs = batch["obs"].to(device, non_blocking=True)
+    pos = batch["pos_m"].to(device, non_blocking=True)
+    act = raw.normalize_actions(batch["actions"].to(device, non_blocking=True))
+    autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else nullcontext()
+    with autocast:
+        if cfg.model == "madp":
+            return model(obs, pos, act, None, generator)  # forward = DDPM loss (through DDP if wrapped)
+        return torch.nn.functional.mse_loss(model(obs, pos).float(), act)
+
+
+# --- the run -------------------------------------------------------------------------------------
+class Trainer:
+    def __init__(self, cfg: TrainConfig, resume: bool = False, progress: bool = True):
+        self.cfg = cfg
+        self.rank, self.world, self.device = setup_distributed()
+        self.is_main = self.rank == 0
+        self.progress = progress and self.is_main
+        self.out = Path(cfg.out)
+        self.manifest = open_dataset(cfg.data)
+        if self.manifest.action_stats is None:
+            raise ValueError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
+        torch.manual_seed(cfg.seed)
+        self.raw = build_model(cfg, self.manifest.num_robots).to(self.device)
+        stats = self.manifest.action_stats
+        self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
+                                  torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
+        opt_cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
+        self.opt = opt_cls(self.raw.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.ema = EMA(self.raw, cfg.ema_decay) if cfg.model == "madp" else None
+        self.model = self.raw
+        if self.world > 1:
+            self.model = torch.nn.parallel.DistributedDataParallel(
+                self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
+        self.train_data = ShardStream(cfg.data, self.manifest, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
+                                      self.rank, self.world)
+        self.step, self.epoch, self.batches_done = 0, 0, 0
+        self.best_val, self.bad_epochs = math.inf, 0
+        self.seen_ids: set = set()  # (episode, step) of trained samples, for the DDP check
+        ckpt = self.out / "checkpoints" / "latest"
+        if resume:
+            self._load(ckpt)
+        elif self.is_main and ckpt.exists():
+            raise ValueError(f"{self.out}: a run is already there; pass --resume to continue it or choose another --out")
+        if self.is_main:
+            self.out.mkdir(parents=True, exist_ok=True)
+            self._write_config()
+        self.tb = self._tensorboard() if self.is_main else None
+
+    # ---- bookkeeping
+    def _meta(self, val_loss: float | None) -> dict:
+        st = self.manifest.action_stats
+        return {"action_stats": st.to_dict(), "train_config": self.cfg.to_dict(), "step": self.step,
+                "epoch": self.epoch, "val_loss": val_loss, "dataset": {
+                    "root": str(self.cfg.data), "num_samples": self.manifest.num_samples,
+                    "created_by": self.manifest.created_by, "params": self.manifest.params},
+                "code_version": self.manifest.code_version}
+
+    def _write_config(self) -> None:
+        d = {"train": self.cfg.to_dict(), "model": self.raw.config.to_dict(),
+             "num_parameters": sum(p.numel() for p in self.raw.parameters()),
+             "world_size": self.world, "device": str(self.device), **self._meta(None)}
+        tmp = self.out / "config.json.tmp"
+        tmp.write_text(json.dumps(d, indent=1) + "\n")
+        tmp.replace(self.out / "config.json")
+
+    def _tensorboard(self):
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:  # tensorboard not installed: JSONL only
+            return None
+        return SummaryWriter(str(self.out / "tb"))
+
+    def _log(self, record: dict) -> None:
+        if not self.is_main:
+            return
+        with open(self.out / "metrics.jsonl", "a") as f:
+            f.write(json.dumps(record) + "\n")
+        if self.tb is not None:
+            for k, v in record.items():
+                if isinstance(v, float) and k not in ("time",):
+                    self.tb.add_scalar(k, v, self.step)
+
+    def _state(self) -> dict:
+        return {"optimizer": self.opt.state_dict(), "ema": self.ema.state_dict() if self.ema else {},
+                "step": self.step, "epoch": self.epoch, "batches_done": self.batches_done,
+                "best_val": self.best_val, "bad_epochs": self.bad_epochs, "torch_rng": torch.get_rng_state()}
+
+    def _save(self, name: str, val_loss: float | None = None) -> None:
+        if not self.is_main:
+            return
+        policy = self.raw
+        if self.ema is not None:
+            policy = build_model(self.cfg, self.manifest.num_robots).to(self.device)
+            policy.load_state_dict(self.raw.state_dict())
+            self.ema.copy_to(policy)
+        save_checkpoint(self.out / "checkpoints" / name, self.raw, policy, self.cfg.model, self._meta(val_loss),
+                        self._state())
+
+    def _load(self, ckpt: Path) -> None:
+        state = load_checkpoint_state(ckpt, self.raw, self.device)
+        self.opt.load_state_dict(state["optimizer"])
+        if self.ema is not None:
+            self.ema.load_state_dict(state["ema"])
+        self.step, self.epoch = int(state["step"]), int(state["epoch"])
+        self.batches_done = int(state["batches_done"])
+        self.best_val, self.bad_epochs = float(state["best_val"]), int(state["bad_epochs"])
+        torch.set_rng_state(state["torch_rng"].cpu())
+        # The log may run ahead of the checkpoint after a crash: drop lines past its step.
+        log = self.out / "metrics.jsonl"
+        if self.is_main and log.exists():
+            keep = [ln for ln in log.read_text().splitlines()
+                    if json.loads(ln).get("step", 0) <= self.step and not (
+                        "val_loss" in json.loads(ln) and json.loads(ln)["epoch"] >= self.epoch)]
+            log.write_text("".join(k + "\n" for k in keep))
+
+    def _check_sync(self) -> None:
+        """All ranks hold the same weights; log their checksums, samples seen and any overlap."""
+        flat = torch.cat([p.detach().double().flatten().cpu() for p in self.raw.parameters()])
+        checksum = float((flat * torch.arange(1, flat.numel() + 1, dtype=torch.float64).sin()).sum())
+        gathered: list = [None] * self.world
+        dist.all_gather_object(gathered, (checksum, sorted(self.seen_ids)))
+        sets = [set(map(tuple, g[1])) for g in gathered]
+        overlap = len(set.intersection(*sets)) if len(sets) > 1 else 0
+        self._log({"step": self.step, "ddp_param_checksums": [g[0] for g in gathered],
+                   "ddp_samples_per_rank": [len(x) for x in sets], "ddp_overlap": overlap})
+        dist.barrier()
+
+    # ---- validation
+    @torch.no_grad()
+    def validate(self) -> float:
+        """Mean loss over the first ``val_samples`` of the val split, with fixed noise (EMA weights)."""
+        stream = ShardStream(self.cfg.data, self.manifest, "val", seed=12345, batch_size=1, buffer_size=1)
+        loader = DataLoader(stream, batch_size=self.cfg.batch_size, num_workers=0)
+        self.raw.eval()
+        ctx = self.ema.average_parameters(self.raw) if self.ema is not None else nullcontext()
+        total, n = 0.0, 0
+        with ctx:
+            for i, batch in enumerate(loader):
+                g = step_generator(self.cfg.seed, i, self.device, stream=1)
+                b = batch["obs"].shape[0]
+                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, g, self.device)) * b
+                n += b
+                if n >= self.cfg.val_samples:
+                    break
+        self.raw.train()
+        return total / max(n, 1)
+
+    # ---- training
+    def fit(self) -> dict:
+        cfg = self.cfg
+        stop_reason = "epochs"
+        while self.epoch < cfg.epochs:
+            per_stream = self.train_data.samples_per_stream(cfg.num_workers, self.epoch)
+            batches = per_stream * max(cfg.num_workers, 1) // cfg.batch_size
+            if cfg.max_steps_per_epoch:
+                batches = min(batches, cfg.max_steps_per_epoch)
+            # Round-robin over workers: batch b comes from worker b % W, its (b // W)-th batch.
+            w = max(cfg.num_workers, 1)
+            done_per_worker = -(-self.batches_done // w)  # workers advance in lockstep (equal counts)
+            if self.batches_done % w:
+                raise RuntimeError("checkpoint position is not at a worker round boundary")
+            self.train_data.set_position(StreamPosition(self.epoch, done_per_worker * cfg.batch_size))
+            loader = DataLoader(self.train_data, batch_size=cfg.batch_size, num_workers=cfg.num_workers,
+                                pin_memory=self.device.type == "cuda", persistent_workers=False)
+            bar = _bar(self.progress, batches, self.batches_done, f"epoch {self.epoch + 1}/{cfg.epochs}")
+            t_last, seen = time.perf_counter(), 0
+            for batch in loader:
+                if self.batches_done >= batches:
+                    break
+                g = step_generator(cfg.seed, self.step, self.device, stream=0 if self.world == 1 else 2 + self.rank)
+                loss = batch_loss(self.model, self.raw, batch, cfg, g, self.device)
+                self.opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if cfg.grad_clip:
+                    torch.nn.utils.clip_grad_norm_(self.raw.parameters(), cfg.grad_clip)
+                self.opt.step()
+                if self.ema is not None:
+                    self.ema.update(self.raw)
+                self.step += 1
+                self.batches_done += 1
+                seen += batch["obs"].shape[0] * self.world
+                if self.world > 1:
+                    self.seen_ids.update(zip(batch["episode_id"].tolist(), batch["step"].tolist()))
+                loss_v = float(loss.detach())
+                if not math.isfinite(loss_v):
+                    raise FloatingPointError(f"training loss became {loss_v} at step {self.step}")
+                if self.step % cfg.log_every == 0 or self.batches_done == batches:
+                    now = time.perf_counter()
+                    rate = seen / max(now - t_last, 1e-9)
+                    self._log({"step": self.step, "epoch": self.epoch, "loss": loss_v,
+                               "lr": self.opt.param_groups[0]["lr"], "samples_per_s": rate})
+                    t_last, seen = now, 0
+                    bar.update(self.batches_done, loss_v, rate)
+                if self.batches_done % (cfg.checkpoint_every * w) == 0:
+                    self._save("latest")
+                if cfg.stop_after_steps and self.step >= cfg.stop_after_steps and self.batches_done % w == 0:
+                    self._save("latest")
+                    bar.close()
+                    return {"stopped": "stop_after_steps", "step": self.step}
+            bar.close()
+            val = self.validate()
+            improved = val < self.best_val - cfg.min_delta
+            self.best_val = min(self.best_val, val) if improved else self.best_val
+            self.bad_epochs = 0 if improved else self.bad_epochs + 1
+            self.epoch += 1
+            self.batches_done = 0
+            self._log({"epoch": self.epoch - 1, "step": self.step, "val_loss": val, "best_val_loss": self.best_val,
+                       "improved": improved})
+            if self.progress:
+                print(f"epoch {self.epoch}: val loss {val:.5f} (best {self.best_val:.5f})")
+            if improved:
+                self._save("best", val)
+            self._save("latest", val)
+            if self.bad_epochs >= cfg.patience:
+                stop_reason = f"early stop: no improvement > {cfg.min_delta} for {cfg.patience} epochs"
+                break
+        if self.world > 1:
+            self._check_sync()
+        return {"stopped": stop_reason, "step": self.step, "epoch": self.epoch, "best_val_loss": self.best_val}
+
+
+class _bar:
+    """Rich progress with loss and samples/s (a no-op when disabled)."""
+
+    def __init__(self, enabled: bool, total: int, done: int, label: str):
+        self.enabled = enabled
+        if enabled:
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                       TimeRemainingColumn)
+
+            self.p = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                              TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
+            self.p.start()
+            self.task = self.p.add_task(label, total=total, completed=done, info="")
+
+    def update(self, done: int, loss: float, rate: float) -> None:
+        if self.enabled:
+            self.p.update(self.task, completed=done, info=f"loss {loss:.4f} {rate:.1f} samples/s")
+
+    def close(self) -> None:
+        if self.enabled:
+            self.p.stop()
+            self.enabled = False
+
+
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
+    trainer = Trainer(cfg, resume=resume, progress=progress)
+    try:
+        return trainer.fit()
+    finally:
+        if dist.is_initialized():
+            dist.destroy_process_group()
