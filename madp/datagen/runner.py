@@ -274,14 +274,20 @@ def merge_parts(parts: list[Path], root: Path) -> Optional[Manifest]:
 
 
 class _Progress:
-    """A rich progress bar with samples/s and ETA (silent when disabled)."""
+    """Progress with samples/s and ETA: a rich bar on a terminal, a plain line every 30 s in a log."""
 
     def __init__(self, total: int, completed: int, enabled: bool):
         self.enabled = enabled
         self.total, self.completed = total, completed
 
     def __enter__(self):
-        if self.enabled:
+        if not self.enabled:
+            return self
+        import sys
+
+        self.t0, self.start, self.last_line = time.perf_counter(), self.completed, 0.0
+        self.tty = sys.stdout.isatty()
+        if self.tty:
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskProgressColumn, TextColumn,
                                        TimeElapsedColumn, TimeRemainingColumn)
 
@@ -290,15 +296,22 @@ class _Progress:
                               TimeRemainingColumn())
             self.p.__enter__()
             self.task = self.p.add_task("datagen", total=self.total, completed=self.completed, rate="")
-            self.t0, self.start = time.perf_counter(), self.completed
         return self
 
     def advance(self, k: int) -> None:
-        if self.enabled:
-            self.completed += k
-            rate = (self.completed - self.start) / max(time.perf_counter() - self.t0, 1e-9)
+        if not self.enabled:
+            return
+        self.completed += k
+        now = time.perf_counter()
+        rate = (self.completed - self.start) / max(now - self.t0, 1e-9)
+        if self.tty:
             self.p.update(self.task, advance=k, rate=f"{rate:.1f} samples/s")
+        elif now - self.last_line >= 30 or self.completed == self.total:
+            eta = (self.total - self.completed) / max(rate, 1e-9)
+            print(f"datagen {self.completed}/{self.total} ({100 * self.completed / self.total:.1f}%) "
+                  f"{rate:.1f} samples/s, elapsed {now - self.t0:.0f} s, ETA {eta / 60:.1f} min", flush=True)
+            self.last_line = now
 
     def __exit__(self, *exc):
-        if self.enabled:
+        if self.enabled and self.tty:
             self.p.__exit__(*exc)

@@ -71,7 +71,7 @@ class MADP(nn.Module):
       information can travel several hops through the layers).
     * ``sample_decentralized(obs, pos_m, ...)``: *decentralized* execution: every robot runs the model
       on its own neighbourhood (itself + the robots in its attention mask) and keeps only its own
-      action; all N neighbourhoods run as one padded batch.
+      action; all neighbourhoods run as one padded batch (identical ones computed once).
     """
 
     def __init__(self, config: MADPConfig | None = None):

@@ -7,6 +7,16 @@ from madp.models import MADP
 from .models_testutils import tiny_madp_config
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _single_thread():
+    """The tiny models gain nothing from intra-op threads, and with the 2 cores shared by other jobs
+    OpenMP's thread hand-offs can make small ops 50x slower; one thread keeps the tests fast."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture
 def tiny_madp():
     torch.manual_seed(0)

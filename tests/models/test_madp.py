@@ -217,3 +217,16 @@ def test_decentralized_dedupe_matches_per_robot_computation(tiny_madp, gen, eta)
     b = tiny_madp.sample_decentralized(obs, pos, num_steps=10, eta=eta, valid=valid, dedupe=False,
                                        generator=torch.Generator().manual_seed(9))
     assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_paper_preset_structure():
+    from madp.models import madp_config
+
+    model = MADP(madp_config("paper"))
+    assert model.cnn.flat_dim == 32 * 26 * 26 and model.cnn.linear.out_features == 32
+    assert model.token_proj.in_features == 34 and model.token_proj.out_features == 256
+    assert len(model.encoder.layers) == 8 and len(model.decoder.layers) == 8
+    assert [layer.use_rope for layer in model.encoder.layers] == [True] + [False] * 7
+    assert [layer.use_rope for layer in model.decoder.layers] == [True] + [False] * 7
+    attn = model.encoder.layers[0].attn
+    assert (attn.n_heads, attn.head_dim) == (8, 32)
