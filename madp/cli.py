@@ -198,6 +198,73 @@ def train(
                    f"best val loss {res.get('best_val_loss', float('nan')):.5f} -> {cfg.out}")
 
 
+# --- evaluation ----------------------------------------------------------------------------------
+scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Scenario files.")
+app.add_typer(scenario_app, name="scenario")
+
+
+@app.command("eval")
+def eval_cmd(
+    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all"),
+    num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
+    steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
+    controllers: Optional[str] = typer.Option(None, help="Comma-separated subset of clairvoyant,dcvt,lpac,madp,madp_central (default: every one available)."),
+    lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
+    madp: Optional[Path] = typer.Option(None, help="MADP policy.safetensors (default: the shipped one)."),
+    ddim_steps: int = typer.Option(50, min=1, help="DDIM steps S for MADP."),
+    eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η."),
+    workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
+    record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
+    cities: Optional[Path] = typer.Option(None, help="Directory of city files (default: the 40 cities shipped with madp)."),
+    out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
+    overwrite: bool = typer.Option(False, help="Replace results made with other settings."),
+) -> None:
+    """Evaluate controllers across a scenario suite: tables, plots and MCAP rollouts."""
+    from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
+    from madp.eval.suites import SUITES
+
+    suites = list(SUITES) if suite == "all" else [suite]
+    if suite != "all" and suite not in SUITES:
+        raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    requested = tuple(c.strip() for c in controllers.split(",")) if controllers else ("clairvoyant", "dcvt", "lpac", "madp")
+    cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
+                     madp=str(madp) if madp else None, ddim_steps=ddim_steps, eta=eta, workers=workers, record=record,
+                     cities=str(cities) if cities else None)
+    cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
+    skipped = [c for c in requested if c not in used]
+    if skipped:
+        typer.echo(f"note: no checkpoint for {', '.join(skipped)}; evaluating {', '.join(used)}")
+    for s in suites:
+        summary = run_suite(cfg, s, overwrite=overwrite)
+        typer.echo((Path(cfg.out) / s / "summary.md").read_text())
+
+
+@scenario_app.command("import")
+def scenario_import_cmd(
+    source: Path = typer.Argument(..., help="Traffic signals: CSV (lat,lon), GeoJSON points or Overpass JSON."),
+    out: Path = typer.Option(..., help="Scenario JSON to write."),
+    seed: int = typer.Option(0, min=0, help="Seed for σ, peaks and robot start positions."),
+    num_robots: int = typer.Option(32, min=1, help="Robots, launched uniformly."),
+    sigma: Tuple[float, float] = typer.Option((40.0, 60.0), help="σ range (m)."),
+    peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range."),
+) -> None:
+    """Turn traffic-signal locations into a scenario file (the 1024 m square with the most signals)."""
+    import numpy as np
+
+    from madp.eval.cities import import_city
+    from madp.sim import Scenario, SimParams
+
+    src = import_city(source, seed=seed, sigma_range=sigma, peak_range=peak)
+    params = SimParams(num_robots=num_robots, num_features=len(src.features), sigma_range_m=sigma, peak_range=peak)
+    robots = np.random.default_rng([seed, 1]).uniform(1e-4, params.world_size - 1e-4, (num_robots, 2))
+    sc = Scenario(src.features, robots, params, name=src.name, seed=seed,
+                  source=f"{source.name}: {src.num_signals_in_square} of {src.num_signals_total} signals, "
+                         f"square SW corner {src.square_origin_latlon}, centre {src.square_center_latlon}")
+    sc.save(out)
+    typer.echo(f"{src.name}: {src.num_signals_in_square} of {src.num_signals_total} signals in the best 1024 m "
+               f"square (centre {src.square_center_latlon[0]:.5f}, {src.square_center_latlon[1]:.5f}) -> {out}")
+
+
 # --- benchmarks ------------------------------------------------------------------------------
 @bench_app.command("sim")
 def bench_sim_cmd(

@@ -51,6 +51,20 @@ def matmul_flops_per_s(n: int = 2048, reps: int = 10, device: torch.device | str
     return 2 * n**3 / statistics.median(times)
 
 
+class _threads:
+    """Temporarily set torch's intra-op thread count (None: leave it)."""
+
+    def __init__(self, n: int | None):
+        self.n, self.before = n, torch.get_num_threads()
+
+    def __enter__(self) -> None:
+        if self.n is not None:
+            torch.set_num_threads(self.n)
+
+    def __exit__(self, *exc: object) -> None:
+        torch.set_num_threads(self.before)
+
+
 def _sync(device: torch.device | str) -> None:
     if torch.device(device).type == "cuda":
         torch.cuda.synchronize()
@@ -81,14 +95,22 @@ def _count_flops(fn) -> int:
 
 def bench_train_step(model_name: str = "madp", preset: str = "cpu", batch_size: int = 32, num_robots: int = 32,
                      steps: int = 5, warmup: int = 2, device: torch.device | str = "cpu",
-                     measure_matmul: bool = True, seed: int = 0) -> dict[str, Any]:
+                     measure_matmul: bool = True, seed: int = 0, threads: int | None = None) -> dict[str, Any]:
     """Training throughput of one model on random data (AdamW step included).
 
     Returns a dict with ``samples_per_s`` (median), ``step_s`` (median seconds per step),
     ``params``; for MADP also ``flops_per_step`` (forward + backward, FlopCounterMode: matmuls,
     convolutions and attention), ``achieved_flops_per_s``, ``matmul_flops_per_s`` (this machine,
-    measured in the same run) and ``fraction_of_matmul``.
+    measured in the same run) and ``fraction_of_matmul``. ``threads`` sets torch's intra-op threads
+    for the run (None: current setting).
     """
+    with _threads(threads):
+        return _bench_train_step(model_name, preset, batch_size, num_robots, steps, warmup, device,
+                                 measure_matmul, seed)
+
+
+def _bench_train_step(model_name: str, preset: str, batch_size: int, num_robots: int, steps: int, warmup: int,
+                      device: torch.device | str, measure_matmul: bool, seed: int) -> dict[str, Any]:
     torch.manual_seed(seed)
     g = torch.Generator().manual_seed(seed)
     if model_name == "madp":
@@ -142,7 +164,8 @@ def bench_train_step(model_name: str = "madp", preset: str = "cpu", batch_size: 
 
 def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int = 50, num_robots: int = 32,
                 repeats: int = 5, warmup: int = 1, eta: float = 0.0, layout: str = "uniform",
-                dedupe: bool = True, device: torch.device | str = "cpu", seed: int = 0) -> dict[str, Any]:
+                dedupe: bool = True, device: torch.device | str = "cpu", seed: int = 0,
+                threads: int | None = None) -> dict[str, Any]:
     """Median latency of one MADP control step for one swarm of ``num_robots`` robots
     (``mode``: ``"decentralized"`` or ``"centralized"``).
 
@@ -151,8 +174,14 @@ def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int
     r_c of everyone, the worst case for decentralized execution, M = N). ``dedupe`` is passed to
     :meth:`MADP.sample_decentralized` (False: every robot's neighbourhood is computed, even when
     several coincide). Also reports the largest and mean neighbourhood size (tokens per
-    neighbourhood batch in decentralized mode).
+    neighbourhood batch in decentralized mode). ``threads`` as in :func:`bench_train_step`.
     """
+    with _threads(threads):
+        return _bench_infer(preset, mode, num_steps, num_robots, repeats, warmup, eta, layout, dedupe, device, seed)
+
+
+def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeats: int, warmup: int, eta: float,
+                 layout: str, dedupe: bool, device: torch.device | str, seed: int) -> dict[str, Any]:
     if mode not in ("decentralized", "centralized"):
         raise ValueError("mode must be 'decentralized' or 'centralized'")
     torch.manual_seed(seed)
@@ -198,14 +227,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--steps", type=int, default=5)
     p.add_argument("--num-robots", type=int, default=32)
+    p.add_argument("--threads", type=int, default=None)
     args = p.parse_args(argv)
+    kw = dict(num_robots=args.num_robots, threads=args.threads)
     results = [
-        bench_train_step("madp", args.preset, args.batch_size, args.num_robots, steps=args.steps),
-        bench_train_step("lpac", args.preset, args.batch_size, args.num_robots, steps=args.steps),
-        bench_infer(args.preset, "decentralized", num_robots=args.num_robots),
-        bench_infer(args.preset, "decentralized", num_robots=args.num_robots, layout="square"),
-        bench_infer(args.preset, "decentralized", num_robots=args.num_robots, layout="square", dedupe=False),
-        bench_infer(args.preset, "centralized", num_robots=args.num_robots),
+        bench_train_step("madp", args.preset, args.batch_size, steps=args.steps, **kw),
+        bench_train_step("lpac", args.preset, args.batch_size, steps=args.steps, **kw),
+        bench_infer(args.preset, "decentralized", **kw),
+        bench_infer(args.preset, "decentralized", layout="square", **kw),
+        bench_infer(args.preset, "decentralized", layout="square", dedupe=False, **kw),
+        bench_infer(args.preset, "centralized", **kw),
     ]
     for r in results:
         print(json.dumps(r))

@@ -1,0 +1,97 @@
+"""Learned policies behind the simulator's controller interface: ``policy(env) -> actions [N, 2] m/s``.
+
+- :class:`LPACPolicy`: LPAC-K3 on the observation tensors and positions (one forward pass).
+- :class:`MADPPolicy`: MADP with DDIM (S steps, η). ``mode="decentralized"``: each robot samples
+  from the tokens of its own neighbourhood and keeps its own action (what the robots would run);
+  ``mode="centralized"``: one masked pass over the whole swarm (a faster approximation).
+
+Checkpoints are ``policy.safetensors`` files (weights + metadata); the ones shipped with madp live
+in ``madp/checkpoints/``.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from madp.sim import CoverageEnv
+
+SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
+
+
+def shipped_checkpoint(kind: str) -> Path | None:
+    """Path of the checkpoint that ships with the package, or None if this install has none."""
+    p = Path(str(resources.files("madp") / "checkpoints" / SHIPPED[kind]))
+    return p if p.is_file() else None
+
+
+def load(path: str | Path, expect: str, device: str = "cpu"):
+    """Load a policy checkpoint and check its kind; one-line errors for missing/incompatible files."""
+    from madp.training.checkpoint import load_policy
+
+    model, meta = load_policy(path, device)
+    if meta["kind"] != expect:
+        raise ValueError(f"{path}: is a {meta['kind']} checkpoint, expected {expect}")
+    return model, meta
+
+
+def _clip_speed(u: np.ndarray, u_max: float) -> np.ndarray:
+    speed = np.linalg.norm(u, axis=1, keepdims=True)
+    return np.where(speed > u_max, u * (u_max / np.maximum(speed, 1e-12)), u)
+
+
+class LPACPolicy:
+    name = "lpac"
+
+    def __init__(self, model, device: str = "cpu"):
+        self.model, self.device = model.eval(), torch.device(device)
+
+    @torch.no_grad()
+    def __call__(self, env: CoverageEnv) -> np.ndarray:
+        obs = torch.from_numpy(env.observations()).to(self.device)[None]
+        pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)[None]
+        u = self.model.denormalize_actions(self.model(obs, pos))[0].double().cpu().numpy()
+        return _clip_speed(u, env.params.max_speed_mps)
+
+
+class MADPPolicy:
+    """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`)."""
+
+    def __init__(self, model, mode: str = "decentralized", num_steps: int = 50, eta: float = 0.0,
+                 seed: int = 0, device: str = "cpu"):
+        if mode not in ("decentralized", "centralized"):
+            raise ValueError(f"--madp-mode: expected decentralized or centralized, got {mode!r}")
+        if num_steps < 1 or not 0.0 <= eta <= 1.0:
+            raise ValueError(f"--ddim-steps must be >= 1 and --eta in [0, 1], got {num_steps}, {eta}")
+        self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, num_steps, eta
+        self.device = torch.device(device)
+        self.name = "madp" if mode == "decentralized" else "madp_central"
+        self.reset(seed)
+
+    def reset(self, seed: int) -> None:
+        self.generator = torch.Generator(device=self.device)
+        self.generator.manual_seed(int(seed) & ((1 << 63) - 1))
+
+    @torch.no_grad()
+    def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
+        """``num_samples`` independent swarm actions [M, N, 2] (m/s) for the current state.
+
+        ``generator`` (default: the policy's own) lets a caller draw extra samples, e.g. for
+        visualisation, without changing the noise the rollout itself uses."""
+        generator = generator or self.generator
+        obs = torch.from_numpy(env.observations()).to(self.device)
+        pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
+        obs = obs[None].expand(num_samples, *obs.shape)
+        pos = pos[None].expand(num_samples, *pos.shape)
+        if self.mode == "decentralized":
+            u = self.model.sample_decentralized(obs, pos, self.num_steps, self.eta, generator=generator)
+        else:
+            u = self.model.sample(obs, pos, self.num_steps, self.eta, generator=generator)
+        u = self.model.denormalize_actions(u).double().cpu().numpy()
+        return np.stack([_clip_speed(x, env.params.max_speed_mps) for x in u])
+
+    def __call__(self, env: CoverageEnv) -> np.ndarray:
+        return self.sample(env, 1)[0]

@@ -1,0 +1,232 @@
+"""Run a suite: every controller on every environment, resumable, in parallel; then tables and plots.
+
+Layout of ``OUT/<suite>/``::
+
+    config.json            suite, steps, controllers, DDIM settings, checkpoint checksums
+    jobs/<env>-<controller>.npz   one finished rollout: cost curve, step times (written atomically)
+    curves.parquet         normalised cost per (group, env, controller, step)
+    results.parquet        final cost and wall time per control step per (group, env, controller)
+    summary.md, summary.json, *.png      from :mod:`madp.eval.report`
+    rollouts/<env>-<controller>.mcap     with --record K: the first K environments, for Foxglove
+
+An interrupted evaluation resumes: finished jobs are kept, the rest run.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from madp.data_schema.manifest import sha256_file
+from madp.sim import ClairvoyantCVT, CoverageEnv, DecentralizedCVT
+
+from .suites import EnvSpec, suite_envs
+
+CLASSICAL = ("clairvoyant", "dcvt")
+LEARNED = ("lpac", "madp", "madp_central")
+ORDER = CLASSICAL + LEARNED
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    suite: str
+    out: str = "runs/eval"
+    num_envs: int = 50
+    steps: int = 600
+    controllers: tuple[str, ...] = ORDER
+    lpac: str | None = None  # checkpoint paths (None: the shipped ones, if any)
+    madp: str | None = None
+    ddim_steps: int = 50
+    eta: float = 0.0
+    workers: int = 0
+    record: int = 0
+    cities: str | None = None
+    record_every: int = 5
+    record_samples: int = 4
+
+
+_models: dict = {}
+
+
+def _load_model(kind: str, path: str):
+    from .policies import load
+
+    key = (kind, path)
+    if key not in _models:
+        _models[key] = load(path, kind)[0]
+    return _models[key]
+
+
+def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
+    if name == "clairvoyant":
+        return ClairvoyantCVT()
+    if name == "dcvt":
+        return DecentralizedCVT()
+    from .policies import LPACPolicy, MADPPolicy
+
+    if name == "lpac":
+        return LPACPolicy(_load_model("lpac", cfg.lpac))
+    mode = "decentralized" if name == "madp" else "centralized"
+    return MADPPolicy(_load_model("madp", cfg.madp), mode, cfg.ddim_steps, cfg.eta, seed=spec.seed)
+
+
+def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, record: bool = False) -> dict:
+    """Roll one controller out on one environment; write its job file (and an MCAP if ``record``)."""
+    job_file = suite_dir / "jobs" / f"{spec.key}-{controller}.npz"
+    scenario = spec.scenario()
+    env = CoverageEnv(scenario)
+    ctrl = make_controller(controller, cfg, spec)
+    t_steps = cfg.steps
+    costs = np.empty(t_steps + 1)
+    costs[0] = 1.0
+    step_s = np.empty(t_steps)
+    positions = np.empty((t_steps + 1, env.num_robots, 2)) if record else None
+    actions = np.empty((t_steps, env.num_robots, 2)) if record else None
+    samples = None
+    if record and controller.startswith("madp"):
+        samples = np.full((t_steps, env.num_robots, cfg.record_samples, 2), np.nan)
+        import torch
+
+        viz_generator = torch.Generator().manual_seed(spec.seed ^ 0x5A5A)  # leaves the rollout's noise alone
+    if positions is not None:
+        positions[0] = env.positions_m
+    for t in range(t_steps):
+        t0 = time.perf_counter()
+        u = ctrl(env)
+        step_s[t] = time.perf_counter() - t0
+        if samples is not None and t % cfg.record_every == 0:
+            samples[t] = ctrl.sample(env, cfg.record_samples, viz_generator).transpose(1, 0, 2)
+        if actions is not None:
+            actions[t] = u
+        env.step(u)
+        costs[t + 1] = env.normalized_cost()
+        if positions is not None:
+            positions[t + 1] = env.positions_m
+    if record:
+        from .record import write_rollout_mcap
+
+        write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map, positions, actions,
+                           controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
+                           title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})")
+    job_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = job_file.with_name(job_file.name + ".tmp.npz")
+    np.savez(tmp, cost=costs, step_s=step_s, num_robots=env.num_robots, num_features=len(scenario.features))
+    os.replace(tmp, job_file)
+    return {"key": spec.key, "controller": controller}
+
+
+def _worker(args):
+    cfg, spec, controller, suite_dir, record = args
+    import torch
+
+    torch.set_num_threads(1)
+    return run_job(cfg, spec, controller, Path(suite_dir), record)
+
+
+def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit: bool) -> tuple[EvalConfig, tuple[str, ...]]:
+    """Resolve checkpoints; drop learned controllers without one unless they were asked for."""
+    from .policies import load, shipped_checkpoint
+
+    unknown = [c for c in requested if c not in ORDER]
+    if unknown:
+        raise ValueError(f"--controllers: unknown {unknown}; expected some of {list(ORDER)}")
+    paths = {"lpac": cfg.lpac, "madp": cfg.madp}
+    keep = []
+    for c in requested:
+        kind = "madp" if c.startswith("madp") else c
+        if kind in paths:
+            path = paths[kind] or (str(shipped_checkpoint(kind)) if shipped_checkpoint(kind) else None)
+            if path is None:
+                if explicit:
+                    raise ValueError(f"--controllers {c}: no --{kind} checkpoint given and none ships with this install")
+                continue
+            load(path, kind)  # a missing or incompatible checkpoint is a one-line error now
+            paths[kind] = path
+        keep.append(c)
+    return EvalConfig(**{**cfg.__dict__, "lpac": paths["lpac"], "madp": paths["madp"], "controllers": tuple(keep)}), tuple(keep)
+
+
+def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bool = True) -> dict:
+    """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
+    envs = suite_envs(suite, cfg.num_envs, cfg.cities)
+    suite_dir = Path(cfg.out) / suite
+    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "controllers": list(cfg.controllers),
+                "ddim_steps": cfg.ddim_steps, "eta": cfg.eta, "record": cfg.record,
+                "checkpoints": {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
+                                for k in ("lpac", "madp") if getattr(cfg, k)},
+                "env_keys": [e.key for e in envs], "env_seeds": [e.seed for e in envs]}
+    cfg_file = suite_dir / "config.json"
+    if cfg_file.exists() and json.loads(cfg_file.read_text()) != settings:
+        if not overwrite:
+            raise ValueError(f"{suite_dir}: holds an evaluation with other settings; pass --overwrite or another --out")
+        import shutil
+
+        shutil.rmtree(suite_dir)
+    suite_dir.mkdir(parents=True, exist_ok=True)
+    cfg_file.write_text(json.dumps(settings, indent=1) + "\n")
+    for stray in suite_dir.rglob("*.tmp*"):
+        stray.unlink()
+    # The first --record environments of the suite (in suite order) are recorded as MCAP.
+    jobs = [(e, c, i < cfg.record) for i, e in enumerate(envs) for c in cfg.controllers
+            if not (suite_dir / "jobs" / f"{e.key}-{c}.npz").exists()]
+    total = len(envs) * len(cfg.controllers)
+    workers = cfg.workers or os.cpu_count() or 1
+    workers = max(1, min(workers, len(jobs))) if jobs else 1
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    with Progress(TextColumn(f"eval {suite}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  TextColumn("ETA"), TimeRemainingColumn(), disable=not progress) as bar:
+        task = bar.add_task(suite, total=total, completed=total - len(jobs))
+        if workers == 1:
+            for e, c, rec in jobs:
+                run_job(cfg, e, c, suite_dir, rec)
+                bar.advance(task)
+        else:
+            os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+            with mp.get_context("spawn").Pool(workers) as pool:
+                for _ in pool.imap_unordered(_worker, [(cfg, e, c, str(suite_dir), rec) for e, c, rec in jobs]):
+                    bar.advance(task)
+    write_tables(envs, cfg, suite_dir)
+    from .report import write_report
+
+    return write_report(suite_dir, suite)
+
+
+def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
+    """curves.parquet and results.parquet from the job files, in suite order."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    curves = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "step", "cost")}
+    results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
+                               "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch")}
+    for e in envs:
+        for c in cfg.controllers:
+            d = np.load(suite_dir / "jobs" / f"{e.key}-{c}.npz")
+            cost = d["cost"]
+            t = len(cost)
+            for k, v in (("suite", [e.suite] * t), ("group", [e.group] * t), ("env", np.full(t, e.index)),
+                         ("scenario_seed", np.full(t, e.seed)), ("controller", [c] * t), ("step", np.arange(t)),
+                         ("cost", cost)):
+                curves[k].append(v)
+            row = dict(suite=e.suite, group=e.group, env=e.index, scenario_seed=e.seed, controller=c,
+                       final_cost=float(cost[-1]), steps=t - 1, mean_step_ms=float(d["step_s"].mean() * 1e3),
+                       num_robots=int(d["num_robots"]), num_features=int(d["num_features"]),
+                       sigma_lo=e.params.sigma_range_m[0], sigma_hi=e.params.sigma_range_m[1],
+                       city=e.group if e.city_file else "", launch=e.launch)
+            for k, v in row.items():
+                results[k].append(v)
+    types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),
+             "num_features": pa.int32(), "scenario_seed": pa.int64()}
+    ctab = pa.table({k: pa.array(np.concatenate([np.asarray(x) for x in v]), type=types.get(k)) for k, v in curves.items()})
+    rtab = pa.table({k: pa.array(v, type=types.get(k)) for k, v in results.items()})
+    for name, tab in (("curves", ctab), ("results", rtab)):
+        tmp = suite_dir / f"{name}.parquet.tmp"
+        pq.write_table(tab, tmp, compression="zstd")
+        os.replace(tmp, suite_dir / f"{name}.parquet")

@@ -1,0 +1,109 @@
+"""Evaluation suites: named, documented, seeded sets of environments (SPEC §5).
+
+| suite   | groups                                          | environments                          |
+|---------|-------------------------------------------------|---------------------------------------|
+| uniform | uniform                                         | num_envs random maps, N = F = 32,     |
+|         |                                                 | σ ∈ [40, 60], uniform launch          |
+| sigma   | sigma_30-40, sigma_20-30, sigma_10-20, sigma_5-10 | num_envs per σ range (out of training) |
+| cities  | one per city file (name from the file)          | the 1024 m square with most signals,  |
+|         |                                                 | a feature per signal, N = 32 uniform  |
+|         |                                                 | launch; at most num_envs cities       |
+| launch  | uniform, square, line                           | num_envs per layout: square x, y ∈    |
+|         |                                                 | [115.25, 217.25]; line x ∈ [0, 1024], |
+|         |                                                 | y ∈ [96, 352]                         |
+| scale   | N{n}_F{f} for n, f ∈ {16, 32, 64, 128}           | num_envs per (N, F)                   |
+| all     | every suite above                               |                                       |
+
+Seeds: an environment's scenario seed is a hash of (suite, group, index) with bit 62 set, and
+dataset seeds always have it clear (:mod:`madp.datagen.plan`), so evaluation never replays a
+training scenario. Every controller of a suite runs on exactly these scenarios and start positions.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from madp.sim import Scenario, SimParams
+
+EVAL_SEED_BIT = 1 << 62
+SUITES = ("uniform", "sigma", "cities", "launch", "scale")
+SIGMA_RANGES = ((30, 40), (20, 30), (10, 20), (5, 10))
+LAUNCHES = {"uniform": None, "square": (115.25, 115.25, 217.25, 217.25), "line": (0.0, 96.0, 1024.0, 352.0)}
+SCALE_SIZES = (16, 32, 64, 128)
+
+
+def default_cities_dir() -> Path:
+    """The traffic-signal files shipped with madp (40 U.S. cities, OpenStreetMap data, ODbL)."""
+    return Path(str(resources.files("madp.eval") / "data" / "cities"))
+
+
+def eval_seed(suite: str, group: str, index: int) -> int:
+    a, b = np.random.SeedSequence([0x5EED, zlib.crc32(suite.encode()), zlib.crc32(group.encode()), index]).generate_state(2, np.uint32)
+    return int(((int(a) << 32 | int(b)) & (EVAL_SEED_BIT - 1)) | EVAL_SEED_BIT)
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """One evaluation environment. ``scenario()`` builds it (deterministically)."""
+
+    suite: str
+    group: str
+    index: int
+    params: SimParams
+    launch: str = "uniform"
+    city_file: str = ""
+
+    @property
+    def seed(self) -> int:
+        return eval_seed(self.suite, self.group, self.index)
+
+    @property
+    def key(self) -> str:
+        slug = "".join(c if c.isalnum() or c in "-_" else "_" for c in self.group)
+        return f"{slug}-{self.index:03d}"
+
+    def scenario(self) -> Scenario:
+        if not self.city_file:
+            return Scenario.random(self.seed, self.params, LAUNCHES[self.launch], name=f"{self.suite}/{self.key}")
+        from .cities import import_city
+
+        src = import_city(self.city_file, seed=self.seed, sigma_range=self.params.sigma_range_m,
+                          peak_range=self.params.peak_range)
+        params = replace(self.params, num_features=len(src.features))
+        rng = np.random.default_rng([self.seed, 1])
+        w = float(params.world_size)
+        robots = rng.uniform(1e-4, w - 1e-4, (params.num_robots, 2))
+        return Scenario(src.features, robots, params, name=src.name, seed=self.seed,
+                        source=f"{Path(self.city_file).name}: {src.num_signals_in_square} of "
+                               f"{src.num_signals_total} signals, square centre {src.square_center_latlon}")
+
+
+def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = None) -> list[EnvSpec]:
+    """The environments of a suite, in a fixed order."""
+    if num_envs < 1:
+        raise ValueError(f"--num-envs: expected a positive number, got {num_envs}")
+    base = SimParams()
+    if suite == "uniform":
+        return [EnvSpec(suite, "uniform", i, base) for i in range(num_envs)]
+    if suite == "sigma":
+        return [EnvSpec(suite, f"sigma_{lo}-{hi}", i, replace(base, sigma_range_m=(lo, hi)))
+                for lo, hi in SIGMA_RANGES for i in range(num_envs)]
+    if suite == "launch":
+        return [EnvSpec(suite, name, i, base, launch=name) for name in LAUNCHES for i in range(num_envs)]
+    if suite == "scale":
+        return [EnvSpec(suite, f"N{n}_F{f}", i, replace(base, num_robots=n, num_features=f))
+                for n in SCALE_SIZES for f in SCALE_SIZES for i in range(num_envs)]
+    if suite == "cities":
+        from .cities import load_city_dir
+
+        directory = Path(cities_dir) if cities_dir else default_cities_dir()
+        files = load_city_dir(directory)
+        if not files:
+            raise ValueError(f"{directory}: no city files (.csv, .geojson, .json) found")
+        return [EnvSpec(suite, Path(f).name.split(".")[0], 0, base, city_file=str(f)) for f in files[:num_envs]]
+    raise ValueError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
