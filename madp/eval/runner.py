@@ -111,6 +111,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     if record:
         from .record import write_rollout_mcap
 
+        (suite_dir / "rollouts").mkdir(parents=True, exist_ok=True)
         write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map, positions, actions,
                            controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})")
