@@ -335,6 +335,49 @@ def bench_io_cmd(
         _write_json(out, r)
 
 
+@bench_app.command("train")
+def bench_train_cmd(
+    steps: int = typer.Option(3, min=1, help="Timed steps per configuration (median)."),
+    paper_batch: int = typer.Option(196, min=1, help="Batch of the paper-preset MADP measurement."),
+    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
+) -> None:
+    """Training samples/s of both models and presets; MADP FLOP/s as a fraction of matmul FLOP/s."""
+    from madp.models.bench import bench_train_step
+
+    rows = [bench_train_step(m, p, b, steps=steps if p == "cpu" else max(1, steps - 1), warmup=1)
+            for m, p, b in (("madp", "cpu", 32), ("lpac", "cpu", 32), ("lpac", "paper", 32), ("madp", "paper", paper_batch))]
+    typer.echo(f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}{'of matmul peak':>16}")
+    for r in rows:
+        frac = f"{100 * r['fraction_of_matmul']:.0f}% of {r['matmul_flops_per_s'] / 1e9:.0f} GFLOP/s" if "fraction_of_matmul" in r else "-"
+        gf = f"{r['flops_per_step'] / 1e9:.1f}" if "flops_per_step" in r else "-"
+        typer.echo(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}{frac:>16}")
+    if out:
+        _write_json(out, rows)
+
+
+@bench_app.command("infer")
+def bench_infer_cmd(
+    madp: Optional[Path] = typer.Option(None, help="Trained MADP cpu checkpoint for the S* search (default: shipped)."),
+    envs: int = typer.Option(2, min=1, help="Environments for the S* cost comparison."),
+    steps: int = typer.Option(200, min=1, help="Control steps per environment for the S* comparison."),
+    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
+) -> None:
+    """MADP control-step latency (N = 32) in both modes, paper and cpu presets, at S = 50 and S*."""
+    from madp.eval.bench import bench_infer_all
+
+    r = bench_infer_all(str(madp) if madp else None, envs=envs, steps=steps)
+    if r["s_star"] is None:
+        typer.echo("no trained MADP checkpoint: S* not measured (latency at S = 50 only)")
+    else:
+        typer.echo("mean normalised cost after %d steps over %d envs by S: %s -> S* = %d" % (
+            steps, envs, ", ".join(f"S={k}: {v:.4f}" for k, v in r["costs"].items()), r["s_star"]))
+    typer.echo(f"{'preset':<7}{'mode':<15}{'S':>4}{'latency s':>11}  (paper: {r['paper_latency_s']} s on an RTX 3090)")
+    for x in r["latency"]:
+        typer.echo(f"{x['preset']:<7}{x['mode']:<15}{x['num_steps']:>4}{x['latency_s']:>11.3f}")
+    if out:
+        _write_json(out, r)
+
+
 def main(argv: Optional[List[str]] = None) -> None:
     """Entry point: run the app, turning user mistakes into one line and exit status 2."""
     args = sys.argv[1:] if argv is None else argv
