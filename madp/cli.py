@@ -183,10 +183,16 @@ def train(
     val_samples: Optional[int] = typer.Option(None, help="Validation samples per epoch."),
     max_steps_per_epoch: Optional[int] = typer.Option(None, help="Cap the steps of an epoch (0: whole split)."),
     checkpoint_every: Optional[int] = typer.Option(None, help="Steps between 'latest' checkpoints."),
+    threads: Optional[int] = typer.Option(None, min=1, help="torch intra-op threads (default: torch's choice)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
     from madp.training import resolve, train as run_train
+
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
 
     cfg = resolve(model, preset, data=str(data), out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, val_samples=val_samples,
