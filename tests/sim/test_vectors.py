@@ -4,9 +4,7 @@ Tolerances (SPEC §6): the library computes its map in float32 as differences of
 each cell carries up to ~2e-3 absolute noise against our exact float64 map. Everything computed on
 *our* map therefore inherits that noise (J and masses ~1e-3 relative; centroids, actions and
 positions to millimetres). Given the library's *own* map (``world_idf`` of seed 1000) the same code
-reproduces its Voronoi sums, clairvoyant actions and trajectories to ~1e-6 or better; DCVT there
-agrees to 1e-5 m because our per-robot block sums of the float32 map are accumulated in float32
-within 16-cell blocks (the library accumulates in double).
+reproduces its Voronoi sums, both controllers' actions and trajectories to ~1e-6 or better.
 """
 
 import json
@@ -84,14 +82,14 @@ def test_first_actions(case, name, cls):
     np.testing.assert_allclose(cls()(env), d[f"{name}_actions0"], atol=1e-3)
     if lib is not None:
         lib.reset()
-        np.testing.assert_allclose(cls()(lib), d[f"{name}_actions0"], atol=1e-6 if name == "clairvoyant" else 1e-5)
+        np.testing.assert_allclose(cls()(lib), d[f"{name}_actions0"], atol=1e-6)
 
 
 @pytest.mark.parametrize("name,cls,checkpoints", [("clairvoyant", ClairvoyantCVT, (1, 5, 20, 100)),
                                                   ("dcvt", DecentralizedCVT, (1, 5, 20))])
 def test_positions_after_steps(case, name, cls, checkpoints):
     tag, d, meta, env, lib = case
-    for e, tol in ((env, 1e-2), (lib, 1e-6 if name == "clairvoyant" else 1e-5)):
+    for e, tol in ((env, 1e-2), (lib, 1e-6)):
         if e is None:
             continue
         e.reset()
