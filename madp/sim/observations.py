@@ -36,7 +36,10 @@ def resize_matrix(in_size: int = 256, out_size: int = 32) -> np.ndarray:
 def resize_maps(maps: np.ndarray, out_size: int = 32) -> np.ndarray:
     """Antialiased bilinear resize of [..., S, S] maps to [..., out, out] (float32)."""
     r = resize_matrix(maps.shape[-1], out_size)
-    return r @ maps.astype(np.float32, copy=False) @ r.T
+    lead, s = maps.shape[:-2], maps.shape[-1]
+    # One large GEMM over every row of every map (y direction), then the small x-direction products.
+    half = (maps.astype(np.float32, copy=False).reshape(-1, s) @ r.T).reshape(-1, s, out_size)
+    return (r @ half).reshape(*lead, out_size, out_size)
 
 
 def boundary_maps(cells_xy: np.ndarray, world_size: int, local_size: int = 256, out_size: int = 32) -> np.ndarray:

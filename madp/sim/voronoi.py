@@ -103,9 +103,19 @@ class Cells:
         with np.errstate(divide="ignore", invalid="ignore"):
             slope = np.where(self.valid & (dy != 0), -dx / dy, 0.0)
         icpt = mid[..., 1] - slope * mid[..., 0]
-        object.__setattr__(self, "slope", slope)
-        object.__setattr__(self, "icpt_up", np.where(self.valid & (dy > 0), icpt, np.inf))
-        object.__setattr__(self, "icpt_lo", np.where(self.valid & (dy < 0), icpt, -np.inf))
+        # Upper bounds (d_y > 0) and lower bounds (d_y < 0) packed separately, each with the box
+        # edge as one more (flat) bound, so evaluating a column needs no masking.
+        r = len(self.sites)
+        zero = np.zeros((r, 1))
+        for name, mask, edge, fill in (("up", self.valid & (dy > 0), self.boxes[:, 3:4], np.inf),
+                                       ("lo", self.valid & (dy < 0), self.boxes[:, 1:2], -np.inf)):
+            k = max(int(mask.sum(1).max()), 0)
+            order = np.argsort(~mask, axis=1, kind="stable")[:, :k]
+            keep = np.take_along_axis(mask, order, 1)
+            sl = np.where(keep, np.take_along_axis(slope, order, 1), 0.0)
+            ic = np.where(keep, np.take_along_axis(icpt, order, 1), fill)
+            object.__setattr__(self, f"slope_{name}", np.concatenate([sl, zero], 1))
+            object.__setattr__(self, f"icpt_{name}", np.concatenate([ic, edge], 1))
         # Competitors level with the site (d_y = 0) bound x instead.
         flat = self.valid & (dy == 0) & (dx != 0)
         x_hi = np.where(flat & (dx > 0), mid[..., 0], np.inf).min(axis=1)
@@ -117,12 +127,9 @@ class Cells:
         """Continuous (y_lower, y_upper) [Q, C] at column centres xc [Q, C] (Q = R, or the robots
         ``rows`` [Q] when given), clipped to the boxes; y_lower >= y_upper where the cell is absent."""
         r = slice(None) if rows is None else rows
-        t = self.slope[r][..., None] * xc[:, None, :]  # [Q, M, C]
-        y_up = np.min(self.icpt_up[r][..., None] + t, axis=1)
-        y_lo = np.max(self.icpt_lo[r][..., None] + t, axis=1)
-        box = self.boxes[r]
-        y_up = np.minimum(y_up, box[:, 3:4])
-        y_lo = np.maximum(y_lo, box[:, 1:2])
+        x = xc[:, None, :]
+        y_up = np.min(self.icpt_up[r][..., None] + self.slope_up[r][..., None] * x, axis=1)
+        y_lo = np.max(self.icpt_lo[r][..., None] + self.slope_lo[r][..., None] * x, axis=1)
         outside = (xc < self.x_lo[r][:, None]) | (xc > self.x_hi[r][:, None])
         return y_lo, np.where(outside, -np.inf, y_up)
 
