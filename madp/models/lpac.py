@@ -20,6 +20,7 @@ import torch
 from torch import Tensor, nn
 from torch_geometric.nn import MLP, TAGConv
 
+from .action_stats import ActionStatsMixin
 from .attention_mask import radius_adjacency
 from .config import LPACConfig
 from .perception import PerceptionCNN
@@ -77,7 +78,7 @@ def sparse_adjacency(edge_index: Tensor, weight: Tensor, num_nodes: int) -> Tens
         return torch.sparse_csr_tensor(crow, source, weight, (num_nodes, num_nodes), check_invariants=False)
 
 
-class LPAC(nn.Module):
+class LPAC(ActionStatsMixin):
     """LPAC-K3. ``forward(obs [B, N, 4, 32, 32], pos_m [B, N, 2], valid=None) -> actions_norm [B, N, 2]``."""
 
     def __init__(self, config: LPACConfig | None = None):
@@ -90,25 +91,11 @@ class LPAC(nn.Module):
         self.gnn = nn.ModuleList(TAGConv(dims[i], dims[i + 1], K=cfg.gnn_hops) for i in range(cfg.gnn_layers))
         self.mlp = MLP([cfg.gnn_hidden, *cfg.mlp_hidden])
         self.out = nn.Linear(cfg.mlp_hidden[-1], cfg.action_dim)
-        self.register_buffer("action_mean", torch.zeros(cfg.action_dim))
-        self.register_buffer("action_std", torch.ones(cfg.action_dim))
-
-    def num_parameters(self) -> int:
-        return sum(p.numel() for p in self.parameters())
+        self._init_action_stats(cfg.action_dim)
 
     @property
     def dtype(self) -> torch.dtype:
         return self.out.weight.dtype
-
-    def set_action_stats(self, mean: Tensor, std: Tensor) -> None:
-        self.action_mean.copy_(torch.as_tensor(mean, dtype=self.action_mean.dtype))
-        self.action_std.copy_(torch.as_tensor(std, dtype=self.action_std.dtype))
-
-    def normalize_actions(self, u: Tensor) -> Tensor:
-        return (u - self.action_mean) / self.action_std
-
-    def denormalize_actions(self, u_norm: Tensor) -> Tensor:
-        return u_norm * self.action_std + self.action_mean
 
     def normalize_positions(self, pos_m: Tensor) -> Tensor:
         w = self.config.world_size

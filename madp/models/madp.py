@@ -28,6 +28,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
+from .action_stats import ActionStatsMixin
 from .attention_mask import attention_mask, neighbourhood_index, pairwise_offsets
 from .config import MADPConfig
 from .diffusion import DDPMSchedule
@@ -59,7 +60,7 @@ class TimestepEmbedding(nn.Module):
         return self.mlp(self.sinusoidal(k).to(w.dtype))
 
 
-class MADP(nn.Module):
+class MADP(ActionStatsMixin):
     """Multi-agent diffusion policy (encoder once, decoder S times).
 
     Main entry points:
@@ -90,8 +91,7 @@ class MADP(nn.Module):
                                                  cfg.dropout, cfg.leaky_slope, cfg.rope_layers)
         self.head = nn.Linear(cfg.d_model, cfg.action_dim)
         self.schedule = DDPMSchedule(cfg.num_train_steps, cfg.beta_start, cfg.beta_end)
-        self.register_buffer("action_mean", torch.zeros(cfg.action_dim))
-        self.register_buffer("action_std", torch.ones(cfg.action_dim))
+        self._init_action_stats(cfg.action_dim)
         self._init_weights()
 
     # ------------------------------------------------------------------------------------ set-up
@@ -106,26 +106,9 @@ class MADP(nn.Module):
                 if m.bias is not None:
                     nn.init.zeros_(m.bias)
 
-    def num_parameters(self) -> int:
-        return sum(p.numel() for p in self.parameters())
-
     @property
     def dtype(self) -> torch.dtype:
         return self.head.weight.dtype
-
-    # ------------------------------------------------------------------------- action statistics
-    def set_action_stats(self, mean: Tensor, std: Tensor) -> None:
-        """Store the dataset's action statistics ``mean [2]``, ``std [2]`` (m/s) in the buffers."""
-        self.action_mean.copy_(torch.as_tensor(mean, dtype=self.action_mean.dtype))
-        self.action_std.copy_(torch.as_tensor(std, dtype=self.action_std.dtype))
-
-    def normalize_actions(self, u: Tensor) -> Tensor:
-        """``u [..., 2]`` m/s -> normalised ``(u - mean) / std``."""
-        return (u - self.action_mean) / self.action_std
-
-    def denormalize_actions(self, u_norm: Tensor) -> Tensor:
-        """normalised ``[..., 2]`` -> m/s."""
-        return u_norm * self.action_std + self.action_mean
 
     # -------------------------------------------------------------------------------- conditioning
     def attention_mask(self, pos_m: Tensor, valid: Tensor | None = None) -> Tensor:
