@@ -157,20 +157,29 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
     envs = suite_envs(suite, cfg.num_envs, cfg.cities)
     suite_dir = Path(cfg.out) / suite
-    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "controllers": list(cfg.controllers),
-                "ddim_steps": cfg.ddim_steps, "eta": cfg.eta, "record": cfg.record,
-                "checkpoints": {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
-                                for k in ("lpac", "madp") if getattr(cfg, k)},
-                "env_keys": [e.key for e in envs], "env_seeds": [e.seed for e in envs]}
+    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "ddim_steps": cfg.ddim_steps,
+                "eta": cfg.eta, "record": cfg.record, "env_keys": [e.key for e in envs],
+                "env_seeds": [e.seed for e in envs]}
+    checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
+                   for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
     cfg_file = suite_dir / "config.json"
-    if cfg_file.exists() and json.loads(cfg_file.read_text()) != settings:
-        if not overwrite:
-            raise ValueError(f"{suite_dir}: holds an evaluation with other settings; pass --overwrite or another --out")
-        import shutil
+    if cfg_file.exists():
+        old = json.loads(cfg_file.read_text())
+        # Controllers may be added to a finished suite; anything else that differs invalidates it.
+        changed = {k for k in settings if old.get(k) != settings[k]}
+        changed |= {k for k, v in checkpoints.items() if k in old.get("checkpoints", {})
+                    and old["checkpoints"][k]["sha256"] != v["sha256"]}
+        if changed:
+            if not overwrite:
+                raise ValueError(f"{suite_dir}: holds an evaluation with other settings ({', '.join(sorted(changed))}); "
+                                 "pass --overwrite or another --out")
+            import shutil
 
-        shutil.rmtree(suite_dir)
+            shutil.rmtree(suite_dir)
+        else:
+            checkpoints = {**old.get("checkpoints", {}), **checkpoints}
     suite_dir.mkdir(parents=True, exist_ok=True)
-    cfg_file.write_text(json.dumps(settings, indent=1) + "\n")
+    cfg_file.write_text(json.dumps({**settings, "checkpoints": checkpoints}, indent=1) + "\n")
     for stray in suite_dir.rglob("*.tmp*"):
         stray.unlink()
     # The first --record environments of the suite (in suite order) are recorded as MCAP.

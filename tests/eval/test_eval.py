@@ -80,9 +80,12 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
     run_suite(cfg, "launch", progress=False)
     after = pq.read_table(d / "results.parquet").to_pandas()
     np.testing.assert_allclose(after.final_cost, results.final_cost)
-    # other settings are refused
+    # other settings are refused; a controller may be added later
     with pytest.raises(ValueError, match="--overwrite"):
         run_suite(EvalConfig(**{**cfg.__dict__, "steps": 13}), "launch", progress=False)
+    fewer = EvalConfig(**{**cfg.__dict__, "controllers": ("clairvoyant", "dcvt")})
+    run_suite(fewer, "launch", progress=False)
+    assert set(pq.read_table(d / "results.parquet").column("controller").to_pylist()) == {"clairvoyant", "dcvt"}
 
 
 def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
