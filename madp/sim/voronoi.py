@@ -151,14 +151,21 @@ class Cells:
         return robot, column
 
     def row_intervals(self, robot: np.ndarray, column: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rows [lo, hi) of each (robot, column) pair, as the library rounds them: int64 [P]."""
-        y_lo, y_up = self.y_bounds((column + 0.5)[:, None], robot)
-        lo = np.floor(np.clip(y_lo[:, 0], -1e9, 1e9) + 0.5).astype(np.int64)
-        hi = np.floor(np.clip(y_up[:, 0], -1e9, 1e9) + 0.5).astype(np.int64)
-        box = self.boxes[robot]
-        lo = np.clip(lo, box[:, 1], box[:, 3]).astype(np.int64)
-        hi = np.clip(hi, box[:, 1], box[:, 3]).astype(np.int64)
-        return lo, np.maximum(hi, lo)
+        """Rows [lo, hi) of each (robot, column) pair, as the library rounds them: int64 [P].
+
+        ``robot`` must be sorted (as :meth:`column_pairs` returns it): each robot's bounds are then
+        repeated over its block of pairs instead of gathered pair by pair."""
+        counts = np.bincount(robot, minlength=len(self.sites))
+        rep = lambda a: np.repeat(a, counts, axis=0)  # noqa: E731
+        x = (column + 0.5)[:, None]
+        y_up = np.min(rep(self.icpt_up) + rep(self.slope_up) * x, axis=1)
+        y_lo = np.max(rep(self.icpt_lo) + rep(self.slope_lo) * x, axis=1)
+        outside = (x[:, 0] < rep(self.x_lo)) | (x[:, 0] > rep(self.x_hi))
+        box = rep(self.boxes)
+        lo = np.clip(np.floor(np.clip(y_lo, -1e9, 1e9) + 0.5), box[:, 1], box[:, 3])
+        hi = np.clip(np.floor(np.clip(y_up, -1e9, 1e9) + 0.5), box[:, 1], box[:, 3])
+        hi = np.where(outside, lo, np.maximum(hi, lo))
+        return lo.astype(np.int64), hi.astype(np.int64)
 
 
 class ColumnPrefix:
