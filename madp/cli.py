@@ -352,11 +352,11 @@ def bench_train_cmd(
 
     rows = [bench_train_step(m, p, b, steps=steps if p == "cpu" else max(1, steps - 1), warmup=1)
             for m, p, b in (("madp", "cpu", 32), ("lpac", "cpu", 32), ("lpac", "paper", 32), ("madp", "paper", paper_batch))]
-    typer.echo(f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}{'of matmul peak':>16}")
+    typer.echo(f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}  {'share of matmul peak'}")
     for r in rows:
         frac = f"{100 * r['fraction_of_matmul']:.0f}% of {r['matmul_flops_per_s'] / 1e9:.0f} GFLOP/s" if "fraction_of_matmul" in r else "-"
         gf = f"{r['flops_per_step'] / 1e9:.1f}" if "flops_per_step" in r else "-"
-        typer.echo(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}{frac:>16}")
+        typer.echo(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}  {frac}")
     if out:
         _write_json(out, rows)
 
