@@ -73,6 +73,26 @@ def _library_id() -> str:
     return f"madp {__version__}; mcap-python {mcap_version}"
 
 
+def start_writer(f, chunk_bytes: int) -> Writer:
+    """A started MCAP writer with the project's settings: zstd chunks, full indexes and summary,
+    CRCs everywhere, and no wall-clock field, so identical messages give identical bytes."""
+    writer = Writer(
+        f,
+        chunk_size=chunk_bytes,
+        compression=CompressionType.ZSTD,
+        index_types=IndexType.ALL,
+        repeat_channels=True,
+        repeat_schemas=True,
+        use_chunking=True,
+        use_statistics=True,
+        use_summary_offsets=True,
+        enable_crcs=True,
+        enable_data_crcs=True,
+    )
+    writer.start(profile="", library=_library_id())
+    return writer
+
+
 @dataclass(frozen=True)
 class McapShardInfo:
     """What a shard's summary and metadata say about it (read without decoding samples)."""
@@ -115,20 +135,7 @@ def write_mcap_shard(
     if step_ns <= 0:
         raise DataError.at(path, f"step_seconds must be positive, got {step_seconds}")
     with open(path, "wb") as f:
-        writer = Writer(
-            f,
-            chunk_size=chunk_bytes,
-            compression=CompressionType.ZSTD,
-            index_types=IndexType.ALL,
-            repeat_channels=True,
-            repeat_schemas=True,
-            use_chunking=True,
-            use_statistics=True,
-            use_summary_offsets=True,
-            enable_crcs=True,
-            enable_data_crcs=True,
-        )
-        writer.start(profile="", library=_library_id())
+        writer = start_writer(f, chunk_bytes)
         sample_schema = writer.register_schema(
             name=sample_proto.SAMPLE_SCHEMA_NAME, encoding=SchemaEncoding.Protobuf, data=sample_proto.FILE_DESCRIPTOR_SET
         )

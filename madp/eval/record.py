@@ -337,14 +337,6 @@ def recorded_steps(num_steps: int, every: int) -> np.ndarray:
     return steps if steps[-1] == num_steps else np.append(steps, num_steps)
 
 
-def _library_id() -> str:
-    from mcap.writer import __version__ as mcap_version
-
-    from madp import __version__
-
-    return f"madp {__version__}; mcap-python {mcap_version}"
-
-
 def write_rollout_mcap(
     path: PathLike,
     world_map: np.ndarray,
@@ -379,10 +371,10 @@ def write_rollout_mcap(
     Raises:
         ValueError: on inconsistent shapes, non-finite positions or non-positive parameters.
     """
-    from mcap.well_known import MessageEncoding
-    from mcap.writer import CompressionType, IndexType, Writer
-
     import foxglove.messages as fx
+    from mcap.well_known import MessageEncoding
+
+    from madp.data_schema.mcap_codec import start_writer
 
     world = np.asarray(world_map)
     pos = np.asarray(positions_m, dtype=np.float64)
@@ -419,20 +411,7 @@ def write_rollout_mcap(
     counts: dict[str, int] = {}
     try:
         with open(tmp, "wb") as f:
-            writer = Writer(
-                f,
-                chunk_size=CHUNK_BYTES,
-                compression=CompressionType.ZSTD,
-                index_types=IndexType.ALL,
-                repeat_channels=True,
-                repeat_schemas=True,
-                use_chunking=True,
-                use_statistics=True,
-                use_summary_offsets=True,
-                enable_crcs=True,
-                enable_data_crcs=True,
-            )
-            writer.start(profile="", library=_library_id())
+            writer = start_writer(f, CHUNK_BYTES)
             channels: dict[str, int] = {}
             schema_ids: dict[str, int] = {}
             for topic, cls in [(TOPIC_MAP, fx.Grid)] + [(t, fx.SceneUpdate) for t in scene_topics]:
