@@ -32,7 +32,7 @@ from madp.data_schema.dataset import open_dataset
 from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
 
 from .checkpoint import load_checkpoint_state, save_checkpoint
-from .config import TrainConfig
+from .config import TrainConfig, learning_rate
 from .stream import ShardStream, StreamPosition
 
 
@@ -214,14 +214,21 @@ class Trainer:
         return total / max(n, 1)
 
     # ---- training
+    def _epoch_batches(self, epoch: int) -> int:
+        cfg = self.cfg
+        batches = self.train_data.samples_per_stream(cfg.num_workers, epoch) * max(cfg.num_workers, 1) // cfg.batch_size
+        return min(batches, cfg.max_steps_per_epoch) if cfg.max_steps_per_epoch else batches
+
+    def planned_steps(self) -> int:
+        """Updates in the whole run if it is not stopped early (the horizon of the lr schedule)."""
+        return sum(self._epoch_batches(e) for e in range(self.cfg.epochs))
+
     def fit(self) -> dict:
         cfg = self.cfg
         stop_reason = "epochs"
+        total_steps = self.planned_steps() if cfg.lr_schedule != "constant" else 0
         while self.epoch < cfg.epochs:
-            per_stream = self.train_data.samples_per_stream(cfg.num_workers, self.epoch)
-            batches = per_stream * max(cfg.num_workers, 1) // cfg.batch_size
-            if cfg.max_steps_per_epoch:
-                batches = min(batches, cfg.max_steps_per_epoch)
+            batches = self._epoch_batches(self.epoch)
             # Round-robin over workers: batch b comes from worker b % W, its (b // W)-th batch.
             w = max(cfg.num_workers, 1)
             done_per_worker = -(-self.batches_done // w)  # workers advance in lockstep (equal counts)
@@ -237,6 +244,8 @@ class Trainer:
                     break
                 g = step_generator(cfg.seed, self.step, self.device, stream=0 if self.world == 1 else 2 + self.rank)
                 loss = batch_loss(self.model, self.raw, batch, cfg, g, self.device)
+                for group in self.opt.param_groups:
+                    group["lr"] = learning_rate(cfg, self.step, total_steps)
                 self.opt.zero_grad(set_to_none=True)
                 loss.backward()
                 if cfg.grad_clip:

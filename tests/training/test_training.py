@@ -15,6 +15,7 @@ from madp.data_schema.dataset import open_dataset
 from madp.datagen import DatagenConfig, run_datagen
 from madp.sim import SimParams
 from madp.training import ShardStream, StreamPosition, load_policy, resolve, train
+from madp.training.config import learning_rate
 
 
 @pytest.fixture(scope="module")
@@ -58,13 +59,17 @@ def losses(run: Path):
 @pytest.mark.parametrize("model", ["madp", "lpac"])
 def test_exact_resume(dataset, tmp_path, model):
     kw = dict(data=str(dataset), epochs=2, batch_size=8, num_workers=0, log_every=1, val_samples=16,
-              checkpoint_every=3, seed=7)
+              checkpoint_every=3, seed=7, warmup_steps=2)  # cpu preset: cosine schedule
     full = resolve(model, "cpu", out=str(tmp_path / "full"), **kw)
     train(full, progress=False)
     part = resolve(model, "cpu", out=str(tmp_path / "part"), stop_after_steps=5, **kw)
     assert train(part, progress=False)["stopped"] == "stop_after_steps"
     train(resolve(model, "cpu", out=str(tmp_path / "part"), **kw), resume=True, progress=False)
     assert losses(tmp_path / "full") == losses(tmp_path / "part")
+    lrs = [json.loads(x)["lr"] for x in (tmp_path / "part" / "metrics.jsonl").read_text().splitlines()
+           if '"lr"' in x]
+    total = len(lrs)
+    assert lrs == [learning_rate(full, s, total) for s in range(total)]  # the schedule survives the resume
     a, ma = load_policy(tmp_path / "full" / "checkpoints" / "latest" / "policy.safetensors")
     b, mb = load_policy(tmp_path / "part" / "checkpoints" / "latest" / "policy.safetensors")
     for (k, x), (_, y) in zip(a.state_dict().items(), b.state_dict().items()):
@@ -102,3 +107,13 @@ def test_torchrun_two_cpu_processes_stay_in_sync(dataset, tmp_path):
     assert sync and len(set(sync[-1]["ddp_param_checksums"])) == 1 and len(sync[-1]["ddp_param_checksums"]) == 2
     assert sync[-1]["ddp_samples_per_rank"][0] == sync[-1]["ddp_samples_per_rank"][1] > 0
     assert sync[-1]["ddp_overlap"] == 0
+
+
+def test_cosine_schedule_warms_up_then_decays_to_five_percent():
+    cfg = resolve("madp", "cpu", warmup_steps=10)
+    lrs = [learning_rate(cfg, s, 1000) for s in range(1001)]
+    assert lrs[0] == pytest.approx(cfg.lr * 0.1, rel=1e-3) and lrs[9] == pytest.approx(cfg.lr, rel=1e-3)
+    assert all(a >= b for a, b in zip(lrs[10:], lrs[11:]))  # monotone decay after warm-up
+    assert lrs[500] == pytest.approx(cfg.lr * 0.525) and lrs[1000] == pytest.approx(cfg.lr * 0.05)
+    paper = resolve("madp", "paper")
+    assert {learning_rate(paper, s, 1000) for s in (0, 500, 999)} == {paper.lr}  # the paper's constant lr
