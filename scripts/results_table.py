@@ -1,23 +1,67 @@
-"""Print the README's results table from runs/eval/<suite>/summary.json (ours beside the paper's)."""
+"""Print the README's results tables from runs/eval/<suite>/summary.json, ours beside the paper's.
+
+Usage: python scripts/results_table.py [EVAL_ROOT]   (default runs/eval)
+"""
 
 import json
 import sys
 from pathlib import Path
 
-PAPER = {"uniform": {"dcvt": 0.72, "lpac": 0.48, "madp": 0.46}, "cities": {"dcvt": 0.63, "lpac": 0.45, "madp": 0.39}}
+# SPEC §5: the paper's normalised cost after 600 steps (DCVT, LPAC-K3, MADP).
+PAPER = {"uniform": {"uniform": {"dcvt": 0.72, "lpac": 0.48, "madp": 0.46}},
+         "cities": {"all": {"dcvt": 0.63, "lpac": 0.45, "madp": 0.39}},
+         "launch": {"square": {"dcvt": 0.71, "lpac": 0.46, "madp": 0.44},
+                    "line": {"dcvt": 0.76, "lpac": 0.20, "madp": 0.17}}}
 NAMES = {"clairvoyant": "clairvoyant CVT", "dcvt": "DCVT", "lpac": "LPAC-K3", "madp": "MADP (decentralized)",
          "madp_central": "MADP (centralized-masked)"}
-root = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/eval")
-print("| suite | controller | ours: J(600)/J(0), mean ± SE [95% CI] | n | paper | ms per step |")
-print("|---|---|---|---|---|---|")
-for suite in ("uniform", "cities"):
+
+
+def paper(suite: str, group: str, controller: str) -> str:
+    v = PAPER.get(suite, {}).get(group, {}).get("madp" if controller.startswith("madp") else controller)
+    return "" if v is None else f"{v:.2f}"
+
+
+def cell(o: dict) -> str:
+    se = f" ± {o['se']:.3f}" if o["se"] is not None else ""
+    return f"{o['mean']:.3f}{se}"
+
+
+def main_table(root: Path) -> None:
+    """uniform and cities: one row per controller, with 95% CI, n and time per step."""
+    print("| suite | controller | ours: J(600)/J(0), mean ± SE [95% CI] | n | paper | ms per step |")
+    print("|---|---|---|---|---|---|")
+    for suite, group in (("uniform", "uniform"), ("cities", "all")):
+        f = root / suite / "summary.json"
+        if not f.exists():
+            continue
+        s = json.loads(f.read_text())
+        for c in s["controllers"]:
+            o = s["overall"][c]
+            print(f"| {suite} | {NAMES.get(c, c)} | {cell(o)} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
+                  f"{paper(suite, group, c)} | {o['mean_step_ms']:.0f} |")
+
+
+def group_table(root: Path, suite: str) -> None:
+    """sigma, launch, scale: one row per group, one column per controller (paper in brackets)."""
     f = root / suite / "summary.json"
     if not f.exists():
-        continue
+        return
     s = json.loads(f.read_text())
-    for c in s["controllers"]:
-        o = s["overall"][c]
-        paper = PAPER[suite].get("madp" if c.startswith("madp") else c, "")
-        se = f" ± {o['se']:.3f}" if o["se"] is not None else ""
-        print(f"| {suite} | {NAMES.get(c, c)} | {o['mean']:.3f}{se} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
-              f"{paper} | {o['mean_step_ms']:.0f} |")
+    cs = s["controllers"]
+    print(f"\n**{suite}** (n per group: {s['by_group'][s['groups'][0]][cs[0]]['n']})\n")
+    print("| group | " + " | ".join(NAMES.get(c, c) for c in cs) + " |")
+    print("|---|" + "---|" * len(cs))
+    for g in s["groups"]:
+        row = []
+        for c in cs:
+            o = s["by_group"][g].get(c)
+            p = paper(suite, g, c)
+            row.append("—" if o is None else cell(o) + (f" (paper {p})" if p else ""))
+        print(f"| {g} | " + " | ".join(row) + " |")
+
+
+if __name__ == "__main__":
+    root = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/eval")
+    main_table(root)
+    for suite in ("sigma", "launch", "scale"):
+        group_table(root, suite)

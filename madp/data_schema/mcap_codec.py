@@ -220,10 +220,7 @@ def write_mcap_shard(
 
 
 def _corrupt(path: PathLike, err: BaseException) -> DataError:
-    detail = f"{type(err).__name__}: {err}"
-    if len(detail) > 160:
-        detail = detail[:157] + "..."
-    return DataError.at(path, f"corrupt or truncated MCAP shard ({detail})")
+    return DataError.corrupt(path, "MCAP", err)
 
 
 # Footer record (opcode, length, summary_start, summary_offset_start, summary_crc) + magic.

@@ -187,10 +187,7 @@ def write_parquet_shard(
 
 
 def _corrupt(path: PathLike, err: BaseException) -> DataError:
-    detail = f"{type(err).__name__}: {err}"
-    if len(detail) > 160:
-        detail = detail[:157] + "..."
-    return DataError.at(path, f"corrupt or truncated Parquet shard ({detail})")
+    return DataError.corrupt(path, "Parquet", err)
 
 
 def _open(path: PathLike, verify_crc: bool = True) -> tuple[pq.ParquetFile, int]:

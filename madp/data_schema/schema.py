@@ -72,6 +72,14 @@ class DataError(Exception):
         """Build an error for ``where`` (a path or a field name) with a ``problem`` description."""
         return cls(f"{where}: {problem}")
 
+    @classmethod
+    def corrupt(cls, path: object, fmt: str, err: BaseException) -> "DataError":
+        """A shard of format ``fmt`` that its reader could not decode, with the reader's reason (shortened)."""
+        detail = f"{type(err).__name__}: {err}"
+        if len(detail) > 160:
+            detail = detail[:157] + "..."
+        return cls.at(path, f"corrupt or truncated {fmt} shard ({detail})")
+
 
 # --------------------------------------------------------------------------------------------
 # validation helpers

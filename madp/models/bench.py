@@ -70,6 +70,20 @@ def _sync(device: torch.device | str) -> None:
         torch.cuda.synchronize()
 
 
+def _timed(fn, warmup: int, repeats: int, device) -> list[float]:
+    """Wall seconds of ``repeats`` calls of ``fn`` after ``warmup`` untimed ones (device-synchronised)."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        _sync(device)
+        t = time.perf_counter()
+        fn()
+        _sync(device)
+        times.append(time.perf_counter() - t)
+    return times
+
+
 def _count_flops(fn) -> int:
     """FLOPs of ``fn()`` by ``FlopCounterMode``. Its default table knows the CUDA attention kernels but
     not the CPU flash-attention op that ``scaled_dot_product_attention`` dispatches to here, so that
@@ -131,15 +145,7 @@ def _bench_train_step(model_name: str, preset: str, batch_size: int, num_robots:
         loss.backward()
         opt.step()
 
-    for _ in range(warmup):
-        step()
-    times = []
-    for _ in range(steps):
-        _sync(device)
-        t = time.perf_counter()
-        step()
-        _sync(device)
-        times.append(time.perf_counter() - t)
+    times = _timed(step, warmup, steps, device)
     step_s = statistics.median(times)
     out: dict[str, Any] = {
         "model": model_name, "preset": preset, "batch_size": batch_size, "num_robots": num_robots,
@@ -204,15 +210,7 @@ def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeat
             else:
                 model.sample(obs, pos, num_steps=num_steps, eta=eta)
 
-    for _ in range(warmup):
-        run()
-    times = []
-    for _ in range(repeats):
-        _sync(device)
-        t = time.perf_counter()
-        run()
-        _sync(device)
-        times.append(time.perf_counter() - t)
+    times = _timed(run, warmup, repeats, device)
     return {
         "preset": preset, "mode": mode, "layout": layout, "dedupe": dedupe, "num_steps": num_steps, "num_robots": num_robots,
         "threads": torch.get_num_threads(), "device": str(device),
