@@ -56,6 +56,14 @@ class LPACPolicy:
         u = self.model.denormalize_actions(self.model(obs, pos))[0].double().cpu().numpy()
         return _clip_speed(u, env.params.max_speed_mps)
 
+    @torch.no_grad()
+    def act_batch(self, envs: list[CoverageEnv]) -> np.ndarray:
+        """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, in one forward pass."""
+        obs = torch.from_numpy(np.stack([e.observations() for e in envs])).to(self.device)
+        pos = torch.from_numpy(np.stack([e.positions_m for e in envs]).astype(np.float32)).to(self.device)
+        u = self.model.denormalize_actions(self.model(obs, pos)).double().cpu().numpy()
+        return np.stack([_clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])
+
 
 class MADPPolicy:
     """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`)."""
@@ -95,3 +103,26 @@ class MADPPolicy:
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         return self.sample(env, 1)[0]
+
+    @torch.no_grad()
+    def act_batch(self, envs: list[CoverageEnv], generators: list[torch.Generator]) -> np.ndarray:
+        """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, sampled as one batch.
+
+        Environment b's noise comes from ``generators[b]`` in the order a lone :meth:`sample` would
+        draw it (U_K, then one draw per DDIM step when η > 0), so batching changes only float rounding."""
+        def draws(g: torch.Generator, shape) -> tuple[torch.Tensor, torch.Tensor | None]:
+            first = torch.randn(shape, generator=g, device=self.device)
+            steps = (torch.stack([torch.randn(shape, generator=g, device=self.device) for _ in range(self.num_steps)])
+                     if self.eta > 0 else None)
+            return first, steps
+
+        obs = torch.from_numpy(np.stack([e.observations() for e in envs])).to(self.device)
+        pos = torch.from_numpy(np.stack([e.positions_m for e in envs]).astype(np.float32)).to(self.device)
+        shape = (1, pos.shape[1], self.model.config.action_dim)
+        noise = [draws(g, shape) for g in generators]
+        first = torch.cat([n[0] for n in noise])
+        steps = torch.cat([n[1] for n in noise], dim=1) if self.eta > 0 else None
+        sampler = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
+        u = sampler(obs, pos, self.num_steps, self.eta, noise=first, step_noise=steps)
+        u = self.model.denormalize_actions(u).double().cpu().numpy()
+        return np.stack([_clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])

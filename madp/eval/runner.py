@@ -115,19 +115,88 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
         write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map, positions, actions,
                            controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})")
-    job_file.parent.mkdir(parents=True, exist_ok=True)
-    tmp = job_file.with_name(job_file.name + ".tmp.npz")
-    np.savez(tmp, cost=costs, step_s=step_s, num_robots=env.num_robots, num_features=len(scenario.features))
-    os.replace(tmp, job_file)
+    _save_job(job_file, costs, step_s, env.num_robots, len(scenario.features))
     return {"key": spec.key, "controller": controller}
 
 
+def _save_job(job_file: Path, costs: np.ndarray, step_s: np.ndarray, num_robots: int, num_features: int) -> None:
+    job_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = job_file.with_name(job_file.name + ".tmp.npz")
+    np.savez(tmp, cost=costs, step_s=step_s, num_robots=num_robots, num_features=num_features)
+    os.replace(tmp, job_file)
+
+
+def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir: Path) -> list[dict]:
+    """Roll a learned controller out on several environments (same N) in lockstep, one policy call
+    per control step for all of them; write one job file per environment.
+
+    Each environment keeps its own sampling noise (MADP: a generator seeded as in :func:`run_job`),
+    so a batch differs from lone rollouts only by float rounding. ``step_s`` is the batch's wall
+    time per control step divided by the batch size (the amortised cost per environment)."""
+    import torch
+
+    envs = [CoverageEnv(s.scenario()) for s in specs]
+    if len({e.num_robots for e in envs}) != 1:
+        raise ValueError("run_batch: environments of one batch must have the same number of robots")
+    ctrl = make_controller(controller, cfg, specs[0])
+    generators = [torch.Generator().manual_seed(int(s.seed) & ((1 << 63) - 1)) for s in specs]
+    act = (lambda: ctrl.act_batch(envs)) if controller == "lpac" else (lambda: ctrl.act_batch(envs, generators))
+    b, t_steps = len(envs), cfg.steps
+    costs = np.empty((b, t_steps + 1))
+    costs[:, 0] = 1.0
+    step_s = np.empty(t_steps)
+    for t in range(t_steps):
+        t0 = time.perf_counter()
+        u = act()
+        step_s[t] = (time.perf_counter() - t0) / b
+        for i, env in enumerate(envs):
+            env.step(u[i])
+            costs[i, t + 1] = env.normalized_cost()
+    for i, (spec, env) in enumerate(zip(specs, envs)):
+        _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs[i], step_s, env.num_robots,
+                  len(env.scenario.features))
+    return [{"key": s.key, "controller": controller} for s in specs]
+
+
+def plan_jobs(envs: list[EnvSpec], controllers: tuple[str, ...], suite_dir: Path, record: int,
+              batch: int = 8) -> list[tuple[str, list[EnvSpec], bool]]:
+    """The unfinished work as ``(controller, envs, record)`` tasks.
+
+    Learned controllers run ``batch`` environments of one group at a time (fixed chunks of the
+    suite's order, so a rerun forms the same batches); classical controllers and the first ``record``
+    environments (recorded as MCAP) run one environment per task."""
+    done = lambda e, c: (suite_dir / "jobs" / f"{e.key}-{c}.npz").exists()  # noqa: E731
+    tasks = []
+    for c in controllers:
+        chunk: list[EnvSpec] = []
+        for i, e in enumerate(envs):
+            if c in CLASSICAL or i < record:
+                if not done(e, c):
+                    tasks.append((c, [e], i < record))
+                continue
+            if chunk and (len(chunk) == batch or chunk[0].group != e.group):
+                tasks.append((c, chunk, False))
+                chunk = []
+            chunk.append(e)
+        if chunk:
+            tasks.append((c, chunk, False))
+    return [(c, [e for e in es if not done(e, c)], rec) for c, es, rec in tasks if any(not done(e, c) for e in es)]
+
+
+def run_task(cfg: EvalConfig, controller: str, specs: list[EnvSpec], suite_dir: Path, record: bool) -> int:
+    if len(specs) == 1:
+        run_job(cfg, specs[0], controller, suite_dir, record)
+    else:
+        run_batch(cfg, specs, controller, suite_dir)
+    return len(specs)
+
+
 def _worker(args):
-    cfg, spec, controller, suite_dir, record = args
+    cfg, controller, specs, suite_dir, record = args
     import torch
 
     torch.set_num_threads(1)
-    return run_job(cfg, spec, controller, Path(suite_dir), record)
+    return run_task(cfg, controller, specs, Path(suite_dir), record)
 
 
 def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit: bool) -> tuple[EvalConfig, tuple[str, ...]]:
@@ -183,25 +252,24 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     for stray in suite_dir.rglob("*.tmp*"):
         stray.unlink()
     # The first --record environments of the suite (in suite order) are recorded as MCAP.
-    jobs = [(e, c, i < cfg.record) for i, e in enumerate(envs) for c in cfg.controllers
-            if not (suite_dir / "jobs" / f"{e.key}-{c}.npz").exists()]
+    tasks = plan_jobs(envs, cfg.controllers, suite_dir, cfg.record)
     total = len(envs) * len(cfg.controllers)
+    pending = sum(len(es) for _, es, _ in tasks)
     workers = cfg.workers or os.cpu_count() or 1
-    workers = max(1, min(workers, len(jobs))) if jobs else 1
+    workers = max(1, min(workers, len(tasks))) if tasks else 1
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     with Progress(TextColumn(f"eval {suite}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   TextColumn("ETA"), TimeRemainingColumn(), disable=not progress) as bar:
-        task = bar.add_task(suite, total=total, completed=total - len(jobs))
+        task = bar.add_task(suite, total=total, completed=total - pending)
         if workers == 1:
-            for e, c, rec in jobs:
-                run_job(cfg, e, c, suite_dir, rec)
-                bar.advance(task)
+            for c, es, rec in tasks:
+                bar.advance(task, run_task(cfg, c, es, suite_dir, rec))
         else:
             os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             with mp.get_context("spawn").Pool(workers) as pool:
-                for _ in pool.imap_unordered(_worker, [(cfg, e, c, str(suite_dir), rec) for e, c, rec in jobs]):
-                    bar.advance(task)
+                for n in pool.imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec) for c, es, rec in tasks]):
+                    bar.advance(task, n)
     write_tables(envs, cfg, suite_dir)
     from .report import write_report
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from madp.datagen.plan import DATASET_SEED_BITS
-from madp.eval.runner import EvalConfig, available_controllers, run_suite
+from madp.eval.runner import EvalConfig, available_controllers, plan_jobs, run_batch, run_job, run_suite
 from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
 from madp.models import LPAC, MADP, lpac_config, madp_config
 from madp.training.checkpoint import save_policy
@@ -101,3 +101,35 @@ def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
     assert r.returncode == 2 and "--suite" in r.stderr
     r = run("--controllers", "dcvt,foo")
     assert r.returncode == 2 and "foo" in r.stderr
+
+
+@pytest.mark.parametrize("controller,eta", [("lpac", 0.0), ("madp_central", 0.5), ("madp", 0.0)])
+def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller, eta):
+    """Learned controllers run several environments per policy call; each keeps its own noise."""
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=4, ddim_steps=3, eta=eta,
+                     lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
+    envs = suite_envs("uniform", 3)
+    run_batch(cfg, envs, controller, tmp_path / "batch")
+    for e in envs:
+        run_job(cfg, e, controller, tmp_path / "lone")
+        a = np.load(tmp_path / "batch" / "jobs" / f"{e.key}-{controller}.npz")["cost"]
+        b = np.load(tmp_path / "lone" / "jobs" / f"{e.key}-{controller}.npz")["cost"]
+        np.testing.assert_allclose(a, b, rtol=1e-5)  # float rounding only, not other noise
+    assert len({float(np.load(tmp_path / "batch" / "jobs" / f"{e.key}-{controller}.npz")["cost"][-1])
+                for e in envs}) == 3  # three different environments, not one repeated
+
+
+def test_plan_batches_learned_controllers_within_groups(tmp_path):
+    envs = suite_envs("launch", 10)  # 3 groups x 10
+    tasks = plan_jobs(envs, ("dcvt", "lpac"), tmp_path, record=1, batch=4)
+    dcvt = [t for t in tasks if t[0] == "dcvt"]
+    assert len(dcvt) == 30 and all(len(es) == 1 for _, es, _ in dcvt)
+    lpac = [[e.key for e in es] for c, es, _ in tasks if c == "lpac"]
+    assert lpac[0] == ["uniform-000"] and [t for c, _, t in tasks if c == "lpac"][0]  # recorded alone
+    assert lpac[1] == [f"uniform-00{i}" for i in range(1, 5)] and lpac[3] == ["uniform-009"]
+    assert all(len({k.split("-")[0] for k in ks}) == 1 for ks in lpac)  # a batch never mixes groups
+    assert sorted(k for ks in lpac for k in ks) == sorted(e.key for e in envs)
+    (tmp_path / "jobs").mkdir()
+    (tmp_path / "jobs" / "uniform-002-lpac.npz").touch()
+    again = [[e.key for e in es] for c, es, _ in plan_jobs(envs, ("lpac",), tmp_path, record=1, batch=4)]
+    assert again[1] == ["uniform-001", "uniform-003", "uniform-004"]  # same chunk, minus the finished one
