@@ -33,6 +33,7 @@ def load(path: str | Path, expect: str, device: str = "cpu"):
     from madp.training.checkpoint import load_policy
 
     model, meta = load_policy(path, device)
+    torch.set_flush_denormal(True)  # subnormal weights (see madp.training.trainer) would slow every step
     if meta["kind"] != expect:
         raise ValueError(f"{path}: is a {meta['kind']} checkpoint, expected {expect}")
     return model, meta
