@@ -162,8 +162,8 @@ def plan_jobs(envs: list[EnvSpec], controllers: tuple[str, ...], suite_dir: Path
               batch: int = 8) -> list[tuple[str, list[EnvSpec], bool]]:
     """The unfinished work as ``(controller, envs, record)`` tasks.
 
-    Learned controllers run ``batch`` environments of one group at a time (fixed chunks of the
-    suite's order, so a rerun forms the same batches); classical controllers and the first ``record``
+    Learned controllers run ``batch`` environments with the same number of robots at a time (fixed
+    chunks of the suite's order, so a rerun forms the same batches); classical controllers and the first ``record``
     environments (recorded as MCAP) run one environment per task."""
     done = lambda e, c: (suite_dir / "jobs" / f"{e.key}-{c}.npz").exists()  # noqa: E731
     tasks = []
@@ -174,7 +174,7 @@ def plan_jobs(envs: list[EnvSpec], controllers: tuple[str, ...], suite_dir: Path
                 if not done(e, c):
                     tasks.append((c, [e], i < record))
                 continue
-            if chunk and (len(chunk) == batch or chunk[0].group != e.group):
+            if chunk and (len(chunk) == batch or chunk[0].params.num_robots != e.params.num_robots):
                 tasks.append((c, chunk, False))
                 chunk = []
             chunk.append(e)

@@ -119,16 +119,17 @@ def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller,
                 for e in envs}) == 3  # three different environments, not one repeated
 
 
-def test_plan_batches_learned_controllers_within_groups(tmp_path):
-    envs = suite_envs("launch", 10)  # 3 groups x 10
+def test_plan_batches_learned_controllers_of_equal_swarm_size(tmp_path):
+    envs = suite_envs("launch", 10)  # 3 groups x 10, all N = 32
     tasks = plan_jobs(envs, ("dcvt", "lpac"), tmp_path, record=1, batch=4)
     dcvt = [t for t in tasks if t[0] == "dcvt"]
     assert len(dcvt) == 30 and all(len(es) == 1 for _, es, _ in dcvt)
     lpac = [[e.key for e in es] for c, es, _ in tasks if c == "lpac"]
     assert lpac[0] == ["uniform-000"] and [t for c, _, t in tasks if c == "lpac"][0]  # recorded alone
-    assert lpac[1] == [f"uniform-00{i}" for i in range(1, 5)] and lpac[3] == ["uniform-009"]
-    assert all(len({k.split("-")[0] for k in ks}) == 1 for ks in lpac)  # a batch never mixes groups
+    assert lpac[1] == [f"uniform-00{i}" for i in range(1, 5)] and lpac[3] == ["uniform-009", "square-000", "square-001", "square-002"]
     assert sorted(k for ks in lpac for k in ks) == sorted(e.key for e in envs)
+    scale = plan_jobs(suite_envs("scale", 3), ("lpac",), tmp_path, record=0, batch=8)
+    assert all(len({e.params.num_robots for e in es}) == 1 for _, es, _ in scale)  # a batch never mixes N
     (tmp_path / "jobs").mkdir()
     (tmp_path / "jobs" / "uniform-002-lpac.npz").touch()
     again = [[e.key for e in es] for c, es, _ in plan_jobs(envs, ("lpac",), tmp_path, record=1, batch=4)]
