@@ -39,6 +39,20 @@ def load(path: str | Path, expect: str, device: str = "cpu"):
     return model, meta
 
 
+def noise_generator(seed: int, device: torch.device | str = "cpu") -> torch.Generator:
+    """The sampling-noise generator of one episode, seeded by its scenario seed."""
+    g = torch.Generator(device=device)
+    g.manual_seed(int(seed) & ((1 << 63) - 1))
+    return g
+
+
+def _swarm_tensors(envs: list[CoverageEnv], device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """``obs [B, N, 4, 32, 32]`` and ``pos_m [B, N, 2]`` (float32) of B environments with the same N."""
+    obs = torch.from_numpy(np.stack([e.observations() for e in envs])).to(device)
+    pos = torch.from_numpy(np.stack([e.positions_m for e in envs]).astype(np.float32)).to(device)
+    return obs, pos
+
+
 def _clip_speed(u: np.ndarray, u_max: float) -> np.ndarray:
     speed = np.linalg.norm(u, axis=1, keepdims=True)
     return np.where(speed > u_max, u * (u_max / np.maximum(speed, 1e-12)), u)
@@ -50,18 +64,14 @@ class LPACPolicy:
     def __init__(self, model, device: str = "cpu"):
         self.model, self.device = model.eval(), torch.device(device)
 
-    @torch.no_grad()
     def __call__(self, env: CoverageEnv) -> np.ndarray:
-        obs = torch.from_numpy(env.observations()).to(self.device)[None]
-        pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)[None]
-        u = self.model.denormalize_actions(self.model(obs, pos))[0].double().cpu().numpy()
-        return _clip_speed(u, env.params.max_speed_mps)
+        return self.act_batch([env])[0]
 
     @torch.no_grad()
-    def act_batch(self, envs: list[CoverageEnv]) -> np.ndarray:
-        """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, in one forward pass."""
-        obs = torch.from_numpy(np.stack([e.observations() for e in envs])).to(self.device)
-        pos = torch.from_numpy(np.stack([e.positions_m for e in envs]).astype(np.float32)).to(self.device)
+    def act_batch(self, envs: list[CoverageEnv], generators: list[torch.Generator] | None = None) -> np.ndarray:
+        """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, in one forward pass
+        (``generators`` is accepted for the common interface; LPAC-K3 draws no noise)."""
+        obs, pos = _swarm_tensors(envs, self.device)
         u = self.model.denormalize_actions(self.model(obs, pos)).double().cpu().numpy()
         return np.stack([_clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])
 
@@ -81,8 +91,7 @@ class MADPPolicy:
         self.reset(seed)
 
     def reset(self, seed: int) -> None:
-        self.generator = torch.Generator(device=self.device)
-        self.generator.manual_seed(int(seed) & ((1 << 63) - 1))
+        self.generator = noise_generator(seed, self.device)
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
@@ -117,8 +126,7 @@ class MADPPolicy:
                      if self.eta > 0 else None)
             return first, steps
 
-        obs = torch.from_numpy(np.stack([e.observations() for e in envs])).to(self.device)
-        pos = torch.from_numpy(np.stack([e.positions_m for e in envs]).astype(np.float32)).to(self.device)
+        obs, pos = _swarm_tensors(envs, self.device)
         shape = (1, pos.shape[1], self.model.config.action_dim)
         noise = [draws(g, shape) for g in generators]
         first = torch.cat([n[0] for n in noise])

@@ -133,21 +133,20 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
     Each environment keeps its own sampling noise (MADP: a generator seeded as in :func:`run_job`),
     so a batch differs from lone rollouts only by float rounding. ``step_s`` is the batch's wall
     time per control step divided by the batch size (the amortised cost per environment)."""
-    import torch
+    from .policies import noise_generator
 
     envs = [CoverageEnv(s.scenario()) for s in specs]
     if len({e.num_robots for e in envs}) != 1:
         raise ValueError("run_batch: environments of one batch must have the same number of robots")
     ctrl = make_controller(controller, cfg, specs[0])
-    generators = [torch.Generator().manual_seed(int(s.seed) & ((1 << 63) - 1)) for s in specs]
-    act = (lambda: ctrl.act_batch(envs)) if controller == "lpac" else (lambda: ctrl.act_batch(envs, generators))
+    generators = [noise_generator(s.seed) for s in specs]
     b, t_steps = len(envs), cfg.steps
     costs = np.empty((b, t_steps + 1))
     costs[:, 0] = 1.0
     step_s = np.empty(t_steps)
     for t in range(t_steps):
         t0 = time.perf_counter()
-        u = act()
+        u = ctrl.act_batch(envs, generators)
         step_s[t] = (time.perf_counter() - t0) / b
         for i, env in enumerate(envs):
             env.step(u[i])
@@ -165,7 +164,11 @@ def plan_jobs(envs: list[EnvSpec], controllers: tuple[str, ...], suite_dir: Path
     Learned controllers run ``batch`` environments with the same number of robots at a time (fixed
     chunks of the suite's order, so a rerun forms the same batches); classical controllers and the first ``record``
     environments (recorded as MCAP) run one environment per task."""
-    done = lambda e, c: (suite_dir / "jobs" / f"{e.key}-{c}.npz").exists()  # noqa: E731
+    finished = {p.name for p in (suite_dir / "jobs").glob("*.npz")}
+
+    def done(e: EnvSpec, c: str) -> bool:
+        return f"{e.key}-{c}.npz" in finished
+
     tasks = []
     for c in controllers:
         chunk: list[EnvSpec] = []
