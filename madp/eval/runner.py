@@ -237,18 +237,26 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     cfg_file = suite_dir / "config.json"
     if cfg_file.exists():
         old = json.loads(cfg_file.read_text())
-        # Controllers may be added to a finished suite; anything else that differs invalidates it.
+        # Controllers may be added to a finished suite. A new checkpoint invalidates only the controllers
+        # that use it; any other setting that differs invalidates the whole suite.
         changed = {k for k in settings if old.get(k) != settings[k]}
-        changed |= {k for k, v in checkpoints.items() if k in old.get("checkpoints", {})
-                    and old["checkpoints"][k]["sha256"] != v["sha256"]}
-        if changed:
+        retrained = {k for k, v in checkpoints.items() if k in old.get("checkpoints", {})
+                     and old["checkpoints"][k]["sha256"] != v["sha256"]}
+        if changed or retrained:
             if not overwrite:
-                raise ValueError(f"{suite_dir}: holds an evaluation with other settings ({', '.join(sorted(changed))}); "
+                what = ", ".join(sorted(changed | {f"{k} checkpoint" for k in retrained}))
+                raise ValueError(f"{suite_dir}: holds an evaluation with other settings ({what}); "
                                  "pass --overwrite or another --out")
-            import shutil
+            if changed:
+                import shutil
 
-            shutil.rmtree(suite_dir)
-        else:
+                shutil.rmtree(suite_dir)
+            else:
+                stale = [c for c in LEARNED if any(c.startswith(k) for k in retrained)]
+                for c in stale:
+                    for f in [*suite_dir.glob(f"jobs/*-{c}.npz"), *suite_dir.glob(f"rollouts/*-{c}.mcap")]:
+                        f.unlink()
+        if not changed:
             checkpoints = {**old.get("checkpoints", {}), **checkpoints}
     suite_dir.mkdir(parents=True, exist_ok=True)
     cfg_file.write_text(json.dumps({**settings, "checkpoints": checkpoints}, indent=1) + "\n")

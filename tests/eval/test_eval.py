@@ -88,6 +88,31 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
     assert set(pq.read_table(d / "results.parquet").column("controller").to_pylist()) == {"clairvoyant", "dcvt"}
 
 
+def test_new_checkpoint_reruns_only_its_controllers(tmp_path, checkpoints):
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=3, workers=1, record=1, ddim_steps=2,
+                     controllers=("dcvt", "lpac", "madp_central"),
+                     lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
+    run_suite(cfg, "uniform", progress=False)
+    d = tmp_path / "uniform"
+    jobs = d / "jobs"
+    stamp = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in jobs.glob("*.npz")}
+    torch.manual_seed(1)
+    retrained = LPAC(lpac_config("cpu"))
+    retrained.set_action_stats(torch.zeros(2), torch.full((2,), 2.0))
+    save_policy(tmp_path / "lpac2.safetensors", retrained, "lpac", META)
+    cfg2 = EvalConfig(**{**cfg.__dict__, "lpac": str(tmp_path / "lpac2.safetensors")})
+    with pytest.raises(ValueError, match="lpac checkpoint"):
+        run_suite(cfg2, "uniform", progress=False)
+    run_suite(cfg2, "uniform", overwrite=True, progress=False)
+    again = {p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in jobs.glob("*.npz")}
+    assert set(again) == set(stamp)
+    rerun = sorted(n for n in stamp if again[n] != stamp[n])  # files are written by rename: a new inode
+    assert rerun == sorted(n for n in stamp if n.endswith("-lpac.npz")) and len(rerun) == 2
+    assert (d / "rollouts" / "uniform-000-lpac.mcap").exists()
+    saved = json.loads((d / "config.json").read_text())["checkpoints"]
+    assert saved["lpac"]["path"].endswith("lpac2.safetensors") and saved["madp"]["path"].endswith("madp.safetensors")
+
+
 def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
     def run(*args):
         return subprocess.run([sys.executable, "-m", "madp.cli", "eval", "--out", str(tmp_path), "--num-envs", "1",
