@@ -22,7 +22,8 @@ The evaluation runner writes two Parquet tables into a suite directory ``runs/ev
 * PNG plots (Agg, 120 dpi): ``cost_<group-slug>.png`` per group (mean cost vs step per controller with a
   shaded per-step 95 % t band across environments), ``cost_all.png`` when the suite has more than
   ``all_threshold`` groups (default 8), and per suite ``sigma_boxplot.png``, ``cities_heatmap.png``
-  or ``scale_improvement_<baseline>.png`` (baseline ``dcvt`` / ``lpac``, when ``madp`` is present).
+  or ``scale_improvement_<baseline>.png`` (baseline ``dcvt`` / ``lpac``; MADP is ``madp`` when present,
+  else ``madp_central``).
 
 Ordering (deterministic, independent of the row order of the tables):
 
@@ -342,12 +343,14 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
         "by_group": by_group,
         "overall": overall,
     }
-    if suite == "scale" and "madp" in controllers and \
+    # MADP in the scale matrices: the decentralized policy when it ran, else the centralized-masked one.
+    method = next((c for c in ("madp", "madp_central") if c in controllers), None)
+    if suite == "scale" and method is not None and \
             _has_column(table, "num_robots") and _has_column(table, "num_features"):
         imp = {}
         for baseline in ("dcvt", "lpac"):
             if baseline in controllers:
-                m = scale_improvement_matrix(table, baseline, "madp")
+                m = scale_improvement_matrix(table, baseline, method)
                 if np.isfinite(m["improvement"]).any():
                     imp[baseline] = m
         if imp:

@@ -383,8 +383,17 @@ def test_write_report_scale_without_curves(tmp_path):
     assert imp["num_robots"] == [16, 64] and imp["num_features"] == [32, 128]
     assert "Relative improvement" in files["summary.md"].read_text()
 
-    # No MADP: nothing to compare, no improvement plots, no error.
+    # Only the centralized-masked MADP: it stands in for MADP in the matrices.
     col = columns(results)
+    renamed = np.where(col["controller"] == "madp", "madp_central", col["controller"])
+    central = results.set_column(results.column_names.index("controller"), "controller", pa.array(renamed))
+    d3 = write_suite(tmp_path / "scale3", None, central)
+    doc3 = strict_json(write_report(d3, "scale")["summary.json"])
+    assert doc3["scale_improvement"]["dcvt"]["method"] == "madp_central"
+    np.testing.assert_allclose(np.array(doc3["scale_improvement"]["dcvt"]["improvement"], dtype=float), want,
+                               rtol=1e-12)
+
+    # No MADP: nothing to compare, no improvement plots, no error.
     no_madp = results.filter(pa.array(col["controller"] != "madp"))
     d2 = write_suite(tmp_path / "scale2", None, no_madp)
     files2 = write_report(d2, "scale")
