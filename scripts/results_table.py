@@ -1,17 +1,17 @@
 """Print the README's results tables from runs/eval/<suite>/summary.json, ours beside the paper's.
 
-Usage: python scripts/results_table.py [EVAL_ROOT]   (default runs/eval)
+Usage: python scripts/results_table.py [EVAL_ROOT ...]   (default runs/eval)
+
+The main table (uniform, cities) takes its rows from every EVAL_ROOT in turn (e.g. a second root that
+ran decentralized MADP on fewer environments); the group tables come from the first.
 """
 
 import json
 import sys
 from pathlib import Path
 
-# SPEC §5: the paper's normalised cost after 600 steps (DCVT, LPAC-K3, MADP).
-PAPER = {"uniform": {"uniform": {"dcvt": 0.72, "lpac": 0.48, "madp": 0.46}},
-         "cities": {"all": {"dcvt": 0.63, "lpac": 0.45, "madp": 0.39}},
-         "launch": {"square": {"dcvt": 0.71, "lpac": 0.46, "madp": 0.44},
-                    "line": {"dcvt": 0.76, "lpac": 0.20, "madp": 0.17}}}
+from madp.eval.report import PAPER_RESULTS as PAPER  # SPEC §5: the paper's J(600)/J(0)
+
 NAMES = {"clairvoyant": "clairvoyant CVT", "dcvt": "DCVT", "lpac": "LPAC-K3", "madp": "MADP (decentralized)",
          "madp_central": "MADP (centralized-masked)"}
 
@@ -26,19 +26,22 @@ def cell(o: dict) -> str:
     return f"{o['mean']:.3f}{se}"
 
 
-def main_table(root: Path) -> None:
+def main_table(roots: list[Path]) -> None:
     """uniform and cities: one row per controller, with 95% CI, n and time per step."""
     print("| suite | controller | ours: J(600)/J(0), mean ± SE [95% CI] | n | paper | ms per step |")
     print("|---|---|---|---|---|---|")
-    for suite, group in (("uniform", "uniform"), ("cities", "all")):
-        f = root / suite / "summary.json"
-        if not f.exists():
-            continue
-        s = json.loads(f.read_text())
-        for c in s["controllers"]:
-            o = s["overall"][c]
-            print(f"| {suite} | {NAMES.get(c, c)} | {cell(o)} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
-                  f"{paper(suite, group, c)} | {o['mean_step_ms']:.0f} |")
+    for suite, group in (("uniform", "all"), ("cities", "all")):
+        for root in roots:
+            f = root / suite / "summary.json"
+            if f.exists():
+                main_rows(json.loads(f.read_text()), suite, group)
+
+
+def main_rows(s: dict, suite: str, group: str) -> None:
+    for c in s["controllers"]:
+        o = s["overall"][c]
+        print(f"| {suite} | {NAMES.get(c, c)} | {cell(o)} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
+              f"{paper(suite, group, c)} | {o['mean_step_ms']:.0f} |")
 
 
 def group_table(root: Path, suite: str) -> None:
@@ -61,7 +64,7 @@ def group_table(root: Path, suite: str) -> None:
 
 
 if __name__ == "__main__":
-    root = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/eval")
-    main_table(root)
+    roots = [Path(a) for a in sys.argv[1:]] or [Path("runs/eval")]
+    main_table(roots)
     for suite in ("sigma", "launch", "scale"):
-        group_table(root, suite)
+        group_table(roots[0], suite)
