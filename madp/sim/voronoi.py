@@ -84,6 +84,10 @@ class Cells:
     others: np.ndarray
     valid: np.ndarray
     boxes: np.ndarray
+    shared: np.ndarray | None = None
+    """[R] bool, or None: robots standing on the same point as a lower-indexed robot (two robots
+    put back into one corner, say). They share that robot's cell: its centroid is their goal too,
+    but its mass and cost count once, for the lowest index."""
 
     def __post_init__(self) -> None:
         # Drop competitors whose half-plane holds the whole box (they cannot shape the cell), then
@@ -211,6 +215,10 @@ def reduce_cells(
     empty = mass < MASS_EPS
     if with_centroids and empty.any():
         centroid[empty] = polygon_vertex_means(cells, np.nonzero(empty)[0])
+    if cells.shared is not None:
+        mass[cells.shared] = 0.0
+        if cost is not None:
+            cost[cells.shared] = 0.0
     return CellSums(mass, centroid, cost)
 
 
@@ -261,11 +269,21 @@ def polygon_vertex_means(cells: Cells, which: np.ndarray) -> np.ndarray:
 
 
 def world_cells(sites_m: np.ndarray, world_size: int) -> Cells:
-    """Voronoi cells of all robots over the whole world (Delaunay neighbours as competitors)."""
+    """Voronoi cells of all robots over the whole world (Delaunay neighbours as competitors).
+
+    Robots on one point share one cell (see :attr:`Cells.shared`), so J stays the integral of the
+    squared distance to the nearest robot: without this, Qhull leaves a duplicate site without
+    neighbours and its "cell" would be the whole world."""
     sites_m = np.asarray(sites_m, dtype=np.float64)
-    nbr, valid = delaunay_neighbours(sites_m)
     boxes = np.broadcast_to(np.array([0.0, 0.0, world_size, world_size]), (len(sites_m), 4))
-    return Cells(sites_m, sites_m[nbr], valid, boxes)
+    uniq, first, inverse = np.unique(sites_m, axis=0, return_index=True, return_inverse=True)
+    if len(uniq) == len(sites_m):
+        nbr, valid = delaunay_neighbours(sites_m)
+        return Cells(sites_m, sites_m[nbr], valid, boxes)
+    rep = inverse.reshape(-1)  # robot -> its point in uniq
+    nbr, valid = delaunay_neighbours(uniq)
+    others = uniq[nbr][rep]
+    return Cells(sites_m, others, valid[rep], boxes, shared=np.arange(len(sites_m)) != first[rep])
 
 
 def voronoi_sums(prefix: ColumnPrefix, sites_m: np.ndarray, with_cost: bool = True) -> CellSums:

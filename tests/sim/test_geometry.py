@@ -38,6 +38,26 @@ def test_collinear_and_clustered_sites():
         np.testing.assert_allclose(s.cost, cost, rtol=1e-9, atol=1e-6)
 
 
+@pytest.mark.parametrize("n", [3, 12, 32])
+def test_robots_on_one_point_share_a_cell_counted_once(n):
+    """Two robots put back into one corner (or otherwise on one point) share that point's cell: J is
+    still the nearest-robot integral (the lowest index owns the cell), and both head for its centroid."""
+    rng = np.random.default_rng(n)
+    w = 256
+    phi = importance_map(random_features(rng, 6, w, (20, 40), (0.6, 1.0)), w)
+    sites = rng.uniform(0, w, (n, 2))
+    sites[1] = sites[n - 1] = [1e-4, 1e-4]
+    if n > 3:
+        sites[5] = sites[2]
+    s = voronoi_sums(ColumnPrefix(phi), sites)
+    mass, centroid, cost = brute_force_sums(phi, sites)
+    np.testing.assert_allclose(s.mass, mass, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(s.cost, cost, rtol=1e-9, atol=1e-6)
+    assert coverage_cost(ColumnPrefix(phi), sites) == pytest.approx(cost.sum(), rel=1e-9)
+    assert s.mass[n - 1] == 0.0 and s.mass[1] == pytest.approx(mass[1])
+    np.testing.assert_array_equal(s.centroid_m[n - 1], s.centroid_m[1])
+
+
 def test_empty_cell_goes_to_polygon_vertex_mean():
     """A robot whose cell holds no importance heads for the mean of its polygon's vertices."""
     phi = np.zeros((256, 256))
