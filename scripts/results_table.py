@@ -10,14 +10,14 @@ import json
 import sys
 from pathlib import Path
 
-from madp.eval.report import PAPER_RESULTS as PAPER  # SPEC §5: the paper's J(600)/J(0)
+from madp.eval.report import paper_results  # SPEC §5: the paper's J(600)/J(0)
 
 NAMES = {"clairvoyant": "clairvoyant CVT", "dcvt": "DCVT", "lpac": "LPAC-K3", "madp": "MADP (decentralized)",
          "madp_central": "MADP (centralized-masked)"}
 
 
-def paper(suite: str, group: str, controller: str) -> str:
-    v = PAPER.get(suite, {}).get(group, {}).get("madp" if controller.startswith("madp") else controller)
+def paper(suite: str, row: str, controller: str) -> str:
+    v = paper_results(suite, row).get("madp" if controller.startswith("madp") else controller)
     return "" if v is None else f"{v:.2f}"
 
 
@@ -30,18 +30,19 @@ def main_table(roots: list[Path]) -> None:
     """uniform and cities: one row per controller, with 95% CI, n and time per step."""
     print("| suite | controller | ours: J(600)/J(0), mean ± SE [95% CI] | n | paper | ms per step |")
     print("|---|---|---|---|---|---|")
-    for suite, group in (("uniform", "all"), ("cities", "all")):
+    for suite in ("uniform", "cities"):
         for root in roots:
             f = root / suite / "summary.json"
             if f.exists():
-                main_rows(json.loads(f.read_text()), suite, group)
+                main_rows(json.loads(f.read_text()), suite)
 
 
-def main_rows(s: dict, suite: str, group: str) -> None:
+def main_rows(s: dict, suite: str) -> None:
+    """One row per controller of a suite's summary; the paper's number is its suite mean (row "all")."""
     for c in s["controllers"]:
         o = s["overall"][c]
         print(f"| {suite} | {NAMES.get(c, c)} | {cell(o)} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
-              f"{paper(suite, group, c)} | {o['mean_step_ms']:.0f} |")
+              f"{paper(suite, 'all', c)} | {o['mean_step_ms']:.0f} |")
 
 
 def group_table(root: Path, suite: str) -> None:
