@@ -217,8 +217,10 @@ def eval_cmd(
     controllers: Optional[str] = typer.Option(None, help="Comma-separated subset of clairvoyant,dcvt,lpac,madp,madp_central (default: every one available)."),
     lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
     madp: Optional[Path] = typer.Option(None, help="MADP policy.safetensors (default: the shipped one)."),
-    ddim_steps: int = typer.Option(50, min=1, help="DDIM steps S for MADP."),
-    eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η."),
+    sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (README, Fast sampling)."),
+    sampling_steps: Optional[int] = typer.Option(None, min=1, help="Sampler steps S for MADP; default: the measured best."),
+    ddim_steps: Optional[int] = typer.Option(None, min=1, hidden=True, help="Old spelling of --sampler ddim --sampling-steps S."),
+    eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     cities: Optional[Path] = typer.Option(None, help="Directory of city files (default: the 40 cities shipped with madp)."),
@@ -233,9 +235,16 @@ def eval_cmd(
     if suite != "all" and suite not in SUITES:
         raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else ("clairvoyant", "dcvt", "lpac", "madp")
+    from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
+
+    if ddim_steps is not None:
+        sampler, sampling_steps = "ddim", ddim_steps
+    sampler = sampler or DEFAULT_SAMPLER
+    sampling_steps = sampling_steps or DEFAULT_SAMPLING_STEPS
+    check_sampler(sampler, sampling_steps, eta)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
-                     madp=str(madp) if madp else None, ddim_steps=ddim_steps, eta=eta, workers=workers, record=record,
-                     cities=str(cities) if cities else None)
+                     madp=str(madp) if madp else None, sampler=sampler, sampling_steps=sampling_steps, eta=eta,
+                     workers=workers, record=record, cities=str(cities) if cities else None)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     skipped = [c for c in requested if c not in used]
     if skipped:
@@ -363,23 +372,41 @@ def bench_train_cmd(
 
 @bench_app.command("infer")
 def bench_infer_cmd(
-    madp: Optional[Path] = typer.Option(None, help="Trained MADP cpu checkpoint for the S* search (default: shipped)."),
-    envs: int = typer.Option(2, min=1, help="Environments for the S* cost comparison."),
-    steps: int = typer.Option(200, min=1, help="Control steps per environment for the S* comparison."),
+    madp: Optional[Path] = typer.Option(None, help="Trained MADP checkpoint for the closed-loop sweep (default: shipped)."),
+    envs: int = typer.Option(50, min=2, help="uniform-suite environments per sweep setting."),
+    steps: int = typer.Option(600, min=1, help="Control steps per environment in the sweep."),
+    grid: str = typer.Option("dpm++:5,10,20;ddim:10,20,50", help="Sweep settings 'sampler:S,...;...' (DDIM-50 is always run)."),
+    sweep_out: Path = typer.Option(Path("runs/bench-infer"), help="Resumable sweep suites and the plot go here."),
+    workers: int = typer.Option(0, min=0, help="Worker processes of the sweep (0: all cores)."),
+    repeats: int = typer.Option(5, min=1, help="Timed calls per latency median."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
-    """MADP control-step latency (N = 32) in both modes, paper and cpu presets, at S = 50 and S*."""
-    from madp.eval.bench import bench_infer_all
+    """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
+    from madp.eval.bench import bench_infer_all, parse_grid
 
-    r = bench_infer_all(str(madp) if madp else None, envs=envs, steps=steps)
-    if r["s_star"] is None:
-        typer.echo("no trained MADP checkpoint: S* not measured (latency at S = 50 only)")
+    r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid), envs=envs, steps=steps,
+                        repeats=repeats, workers=workers)
+    sw = r["sweep"]
+    if sw is None:
+        typer.echo("no trained MADP checkpoint: no closed-loop sweep (latency of DDIM-50 only)")
     else:
-        typer.echo("mean normalised cost after %d steps over %d envs by S: %s -> S* = %d" % (
-            steps, envs, ", ".join(f"S={k}: {v:.4f}" for k, v in r["costs"].items()), r["s_star"]))
-    typer.echo(f"{'preset':<7}{'mode':<15}{'S':>4}{'latency s':>11}  (paper: {r['paper_latency_s']} s on an RTX 3090)")
+        b = sw["baseline"]
+        typer.echo(f"decentralized MADP on uniform ({sw['envs']} envs, {sw['steps']} steps): mean J/J0 ± SE; "
+                   f"DDIM-50 {b['mean']:.4f} ± {b['se']:.4f}")
+        typer.echo(f"{'sampler':<8}{'S':>4}{'mean':>9}{'SE':>8}{'diff vs DDIM-50':>22}{'within 1 SE':>13}{'eval ms/env-step':>18}")
+        for x in sw["rows"]:
+            typer.echo(f"{x['sampler']:<8}{x['steps']:>4}{x['mean']:>9.4f}{x['se']:>8.4f}"
+                       f"{x['diff_vs_baseline']:>+13.4f} ± {x['diff_se']:.4f}{'yes' if x['within_one_se'] else 'no':>13}"
+                       f"{x['eval_ms_per_env_step']:>18.1f}")
+        c = sw["centralized_ddim50"]
+        typer.echo(f"centralized-masked DDIM-50: {c['mean']:.4f}, {c['eval_ms_per_env_step']:.1f} eval ms/env-step; "
+                   f"S* = {', '.join(f'{k}: {v}' for k, v in sw['s_star'].items())}; best: {r['best']['sampler']} "
+                   f"S = {r['best']['steps']}; plot {r['plot']}")
+    typer.echo(f"{'preset':<7}{'mode':<15}{'sampler':<8}{'S':>4}{'latency ms':>12}{'vs DDIM-50':>12}"
+               f"   (median, N = 32, 2 threads; paper: {r['paper_latency_s']} s on an RTX 3090)")
     for x in r["latency"]:
-        typer.echo(f"{x['preset']:<7}{x['mode']:<15}{x['num_steps']:>4}{x['latency_s']:>11.3f}")
+        typer.echo(f"{x['preset']:<7}{x['mode']:<15}{x['sampler']:<8}{x['num_steps']:>4}{1e3 * x['latency_s']:>12.1f}"
+                   f"{x['speedup_vs_ddim50']:>11.1f}x")
     if out:
         _write_json(out, r)
 

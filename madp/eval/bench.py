@@ -1,47 +1,164 @@
-"""``madp bench infer``: MADP's control-step latency, and the fewest DDIM steps that cost nothing.
+"""``madp bench infer``: which (sampler, S) costs nothing in closed loop, and how fast MADP then is.
 
-Latency: one control step for N = 32 (uniform launch) in decentralized and centralized-masked mode,
-for the ``paper`` and ``cpu`` presets (random weights: latency does not depend on them), at S = 50
-and at S*. S* is the smallest S in the candidates whose mean normalised cost after ``steps`` steps,
-over ``envs`` uniform-suite environments, is within 0.01 of S = 50's, measured with a trained
-``cpu`` checkpoint (the shipped one by default). The paper reports 0.36 s per step on an RTX 3090.
+1. **Closed-loop sweep.** For every (sampler, S) of the grid, decentralized MADP (the shipped
+   ``cpu`` checkpoint unless another is given) runs the ``uniform`` suite through :func:`run_suite`
+   (``envs`` environments, ``steps`` control steps; one resumable suite directory per setting under
+   ``sweep_out``, so an interrupted sweep continues and a finished one is only read). The DDIM-50
+   run also evaluates the centralized-masked pass, today's cheap approximation, for the step-time
+   comparison.
+2. **S\\*** of a sampler = the fewest steps whose mean final cost J(T)/J(0) lies within one standard
+   error of DDIM-50's (SE of DDIM-50's mean over the environments). The paired difference to
+   DDIM-50 on the same environments (mean, SE) is reported beside it.
+3. **Latency** of one control step for one swarm of N = 32 (uniform launch, random weights:
+   latency does not depend on them), per preset and mode, for DDIM-50 (the baseline, measured in
+   the same run) and each sampler at its S\\*; medians of ``repeats`` calls.
+4. The **best** setting: the (sampler, S\\*) of lowest cpu-preset decentralized latency.
+5. ``cost_vs_steps.png``: mean cost ± SE against S per sampler, with DDIM-50's band.
+
+The paper reports 0.36 s per control step (N = 32) on an RTX 3090.
 """
 
 from __future__ import annotations
 
+import math
+from pathlib import Path
+
 import numpy as np
 
 from madp.models.bench import bench_infer
-from madp.sim import CoverageEnv
 
-from .policies import MADPPolicy, load, shipped_checkpoint
-from .suites import suite_envs
+from .policies import load, shipped_checkpoint
 
 PAPER_LATENCY_S = 0.36
+#: Default sweep: {sampler: S values}; DDIM-50 (the paper's sampler) is the baseline.
+DEFAULT_GRID = {"dpm++": (5, 10, 20), "ddim": (10, 20, 50)}
+BASELINE = ("ddim", 50)
 
 
-def cost_at(model, num_steps: int, envs: int, steps: int) -> float:
-    costs = []
-    for spec in suite_envs("uniform", envs):
-        env = CoverageEnv(spec.scenario())
-        policy = MADPPolicy(model, "decentralized", num_steps, 0.0, seed=spec.seed)
-        for _ in range(steps):
-            env.step(policy(env))
-        costs.append(env.normalized_cost())
-    return float(np.mean(costs))
+def parse_grid(text: str) -> dict[str, tuple[int, ...]]:
+    """``"dpm++:5,10,20;ddim:10,20,50"`` -> ``{"dpm++": (5, 10, 20), "ddim": (10, 20, 50)}`` (DDIM-50 is
+    always added). One-line ``ValueError`` on anything else."""
+    from madp.models.samplers import SAMPLERS
+
+    grid: dict[str, tuple[int, ...]] = {}
+    for part in filter(None, (p.strip() for p in text.split(";"))):
+        name, _, values = part.partition(":")
+        if name not in SAMPLERS or not values:
+            raise ValueError(f"--grid: expected 'sampler:S,S,...' with sampler in {list(SAMPLERS)}, got {part!r}")
+        try:
+            steps = tuple(sorted({int(v) for v in values.split(",")}))
+        except ValueError:
+            raise ValueError(f"--grid: steps must be integers, got {values!r}") from None
+        if min(steps) < 1:
+            raise ValueError(f"--grid: steps must be >= 1, got {values!r}")
+        grid[name] = steps
+    grid.setdefault(BASELINE[0], ())
+    grid[BASELINE[0]] = tuple(sorted(set(grid[BASELINE[0]]) | {BASELINE[1]}))
+    return grid
 
 
-def bench_infer_all(checkpoint: str | None = None, candidates=(5, 10, 20, 50), envs: int = 2, steps: int = 200,
-                    repeats: int = 5) -> dict:
-    out: dict = {"paper_latency_s": PAPER_LATENCY_S, "s_star": None, "costs": {}}
+def _final_costs(suite_dir: Path, controller: str) -> tuple[np.ndarray, float]:
+    """Final costs ordered by environment, and the mean step ms, of one controller of a finished suite."""
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(suite_dir / "results.parquet").to_pydict()
+    rows = sorted((e, c, ms) for e, k, c, ms in zip(t["env"], t["controller"], t["final_cost"], t["mean_step_ms"])
+                  if k == controller)
+    return np.array([r[1] for r in rows]), float(np.mean([r[2] for r in rows]))
+
+
+def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[int, ...]], envs: int, steps: int,
+                      workers: int = 0, progress: bool = True) -> dict:
+    """Run (or resume, or read) the sweep; returns the per-setting statistics and S* per sampler."""
+    from .runner import EvalConfig, run_suite
+
+    settings = [BASELINE] + [(s, k) for s, ks in grid.items() for k in ks if (s, k) != BASELINE]
+    costs, step_ms = {}, {}
+    for sampler, s in settings:
+        controllers = ("madp", "madp_central") if (sampler, s) == BASELINE else ("madp",)
+        cfg = EvalConfig(suite="uniform", out=str(sweep_out / f"{sampler}-{s}"), num_envs=envs, steps=steps,
+                         controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers)
+        run_suite(cfg, "uniform", progress=progress)
+        suite_dir = Path(cfg.out) / "uniform"
+        costs[(sampler, s)], step_ms[(sampler, s)] = _final_costs(suite_dir, "madp")
+        if (sampler, s) == BASELINE:
+            central, step_ms["central"] = _final_costs(suite_dir, "madp_central")
+    base = costs[BASELINE]
+    n = base.size
+    se_base = float(base.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
+    rows = []
+    for (sampler, s), c in costs.items():
+        d = c - base
+        rows.append({"sampler": sampler, "steps": s, "n": int(c.size), "mean": float(c.mean()),
+                     "se": float(c.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan"),
+                     "diff_vs_baseline": float(d.mean()),
+                     "diff_se": float(d.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan"),
+                     "within_one_se": bool(abs(c.mean() - base.mean()) <= se_base),
+                     "eval_ms_per_env_step": step_ms[(sampler, s)]})
+    rows.sort(key=lambda r: (r["sampler"], r["steps"]))
+    s_star = {smp: min((r["steps"] for r in rows if r["sampler"] == smp and r["within_one_se"]), default=None)
+              for smp in grid}
+    return {"envs": n, "steps": steps, "baseline": {"sampler": BASELINE[0], "steps": BASELINE[1],
+                                                    "mean": float(base.mean()), "se": se_base},
+            "centralized_ddim50": {"mean": float(central.mean()), "eval_ms_per_env_step": step_ms["central"]},
+            "rows": rows, "s_star": s_star}
+
+
+def plot_cost_vs_steps(sweep: dict, path: Path) -> Path:
+    """Mean final cost ± SE against S per sampler (log x), with DDIM-50's mean ± SE as a band."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.4, 4.2))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    b = sweep["baseline"]
+    ax.axhspan(b["mean"] - b["se"], b["mean"] + b["se"], color="0.85", label="DDIM-50 ± 1 SE")
+    names = {"ddim": "DDIM", "dpm++": "DPM-Solver++(2M)"}
+    for smp in sorted({r["sampler"] for r in sweep["rows"]}):
+        rs = [r for r in sweep["rows"] if r["sampler"] == smp]
+        ax.errorbar([r["steps"] for r in rs], [r["mean"] for r in rs], yerr=[r["se"] for r in rs], marker="o",
+                    capsize=3, label=names.get(smp, smp))
+    ax.set_xscale("log")
+    ax.set_xlabel("sampler steps S")
+    ax.set_ylabel(f"mean J({sweep['steps']})/J(0) ± SE")
+    ax.set_title(f"decentralized MADP, uniform suite ({sweep['envs']} envs)")
+    ax.legend(fontsize=9)
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".tmp.png")
+    fig.savefig(tmp, dpi=120)
+    tmp.replace(path)
+    return path
+
+
+def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs/bench-infer",
+                    grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
+                    repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
+                    progress: bool = True) -> dict:
+    """The whole ``madp bench infer`` (module docstring). Without a checkpoint (none given and none
+    shipped) the sweep is skipped and latency is reported for DDIM-50 only."""
+    grid = grid or dict(DEFAULT_GRID)
+    out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
+    settings = [BASELINE]
     if path:
-        model, _ = load(path, "madp")
-        costs = {s: cost_at(model, s, envs, steps) for s in sorted(set(candidates) | {50})}
-        out["costs"] = {str(s): c for s, c in costs.items()}
-        out["s_star"] = min(s for s, c in costs.items() if abs(c - costs[50]) <= 0.01)
+        load(path, "madp")  # a wrong or missing file is a one-line error before hours of work
+        sweep_out = Path(sweep_out)
         out["checkpoint"] = path
-    s_values = sorted({50, out["s_star"] or 50})
-    out["latency"] = [bench_infer(preset, mode, num_steps=s, repeats=repeats)
-                      for preset in ("cpu", "paper") for mode in ("decentralized", "centralized") for s in s_values]
+        out["sweep"] = closed_loop_sweep(path, sweep_out, grid, envs, steps, workers, progress)
+        out["plot"] = str(plot_cost_vs_steps(out["sweep"], sweep_out / "cost_vs_steps.png"))
+        settings += [(smp, s) for smp, s in out["sweep"]["s_star"].items() if s is not None and (smp, s) != BASELINE]
+    lat = []
+    for preset in presets:
+        for mode in ("decentralized", "centralized"):
+            base = None
+            for smp, s in settings:
+                r = bench_infer(preset, mode, num_steps=s, sampler=smp, repeats=repeats, threads=threads)
+                base = base or r["latency_s"]
+                lat.append({**r, "sampler": smp, "speedup_vs_ddim50": base / r["latency_s"]})
+    out["latency"] = lat
+    if out["sweep"]:
+        cands = [x for x in lat if x["preset"] == "cpu" and x["mode"] == "decentralized"]
+        best = min(cands, key=lambda x: x["latency_s"])
+        out["best"] = {"sampler": best["sampler"], "steps": best["num_steps"]}
     return out

@@ -1,7 +1,8 @@
 """Learned policies behind the simulator's controller interface: ``policy(env) -> actions [N, 2] m/s``.
 
 - :class:`LPACPolicy`: LPAC-K3 on the observation tensors and positions (one forward pass).
-- :class:`MADPPolicy`: MADP with DDIM (S steps, η). ``mode="decentralized"``: each robot samples
+- :class:`MADPPolicy`: MADP with a sampler (DDIM or DPM-Solver++, S steps, η for DDIM).
+  ``mode="decentralized"``: each robot samples
   from the tokens of its own neighbourhood and keeps its own action (what the robots would run);
   ``mode="centralized"``: one masked pass over the whole swarm (a faster approximation).
 
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler, make_sampler
 from madp.sim import CoverageEnv
 
 SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
@@ -77,21 +79,32 @@ class LPACPolicy:
 
 
 class MADPPolicy:
-    """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`)."""
+    """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`);
+    ``sampler`` / ``num_steps`` / ``eta`` choose the reverse diffusion (see :mod:`madp.models.samplers`)."""
 
-    def __init__(self, model, mode: str = "decentralized", num_steps: int = 50, eta: float = 0.0,
-                 seed: int = 0, device: str = "cpu"):
+    def __init__(self, model, mode: str = "decentralized", num_steps: int = DEFAULT_SAMPLING_STEPS, eta: float = 0.0,
+                 seed: int = 0, device: str = "cpu", sampler: str = DEFAULT_SAMPLER):
         if mode not in ("decentralized", "centralized"):
             raise ValueError(f"--madp-mode: expected decentralized or centralized, got {mode!r}")
-        if num_steps < 1 or not 0.0 <= eta <= 1.0:
-            raise ValueError(f"--ddim-steps must be >= 1 and --eta in [0, 1], got {num_steps}, {eta}")
-        self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, num_steps, eta
+        check_sampler(sampler, num_steps, eta)
+        self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(num_steps), float(eta)
+        self.sampler = sampler
+        self.stochastic = make_sampler(sampler, model.schedule, num_steps, eta).stochastic
         self.device = torch.device(device)
         self.name = "madp" if mode == "decentralized" else "madp_central"
         self.reset(seed)
 
+    @property
+    def settings(self) -> dict:
+        """What names the sampling in tables and recordings."""
+        return {"sampler": self.sampler, "sampling_steps": self.num_steps, "eta": self.eta}
+
     def reset(self, seed: int) -> None:
         self.generator = noise_generator(seed, self.device)
+
+    def _sample(self, obs: torch.Tensor, pos: torch.Tensor, **noise) -> torch.Tensor:
+        fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
+        return fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, **noise)
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
@@ -104,11 +117,7 @@ class MADPPolicy:
         pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
         obs = obs[None].expand(num_samples, *obs.shape)
         pos = pos[None].expand(num_samples, *pos.shape)
-        if self.mode == "decentralized":
-            u = self.model.sample_decentralized(obs, pos, self.num_steps, self.eta, generator=generator)
-        else:
-            u = self.model.sample(obs, pos, self.num_steps, self.eta, generator=generator)
-        u = self.model.denormalize_actions(u).double().cpu().numpy()
+        u = self.model.denormalize_actions(self._sample(obs, pos, generator=generator)).double().cpu().numpy()
         return np.stack([_clip_speed(x, env.params.max_speed_mps) for x in u])
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
@@ -119,19 +128,18 @@ class MADPPolicy:
         """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, sampled as one batch.
 
         Environment b's noise comes from ``generators[b]`` in the order a lone :meth:`sample` would
-        draw it (U_K, then one draw per DDIM step when η > 0), so batching changes only float rounding."""
+        draw it (U_K, then one draw per step when the sampler is stochastic: DDIM with η > 0), so
+        batching changes only float rounding."""
         def draws(g: torch.Generator, shape) -> tuple[torch.Tensor, torch.Tensor | None]:
             first = torch.randn(shape, generator=g, device=self.device)
             steps = (torch.stack([torch.randn(shape, generator=g, device=self.device) for _ in range(self.num_steps)])
-                     if self.eta > 0 else None)
+                     if self.stochastic else None)
             return first, steps
 
         obs, pos = _swarm_tensors(envs, self.device)
         shape = (1, pos.shape[1], self.model.config.action_dim)
         noise = [draws(g, shape) for g in generators]
         first = torch.cat([n[0] for n in noise])
-        steps = torch.cat([n[1] for n in noise], dim=1) if self.eta > 0 else None
-        sampler = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
-        u = sampler(obs, pos, self.num_steps, self.eta, noise=first, step_noise=steps)
-        u = self.model.denormalize_actions(u).double().cpu().numpy()
+        steps = torch.cat([n[1] for n in noise], dim=1) if self.stochastic else None
+        u = self.model.denormalize_actions(self._sample(obs, pos, noise=first, step_noise=steps)).double().cpu().numpy()
         return np.stack([_clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])

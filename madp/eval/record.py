@@ -348,6 +348,7 @@ def write_rollout_mcap(
     sample_horizon_steps: int = 10,
     every: int = 1,
     title: str = "",
+    extra_metadata: Optional[dict] = None,
 ) -> dict:
     """Write one evaluation rollout as a Foxglove-viewable MCAP file (see the module docstring).
 
@@ -364,6 +365,8 @@ def write_rollout_mcap(
         sample_horizon_steps: steps each sampled velocity is held for its drawn path.
         every: record every ``every``-th step (and always the last, T).
         title: free text stored in the metadata (e.g. scenario and seed).
+        extra_metadata: more ``{key: value}`` for the metadata record (MADP: ``sampler``,
+            ``sampling_steps``, ``eta``).
 
     Returns:
         ``{"path": str, "bytes": file size, "messages": total messages, "topics": {topic: count}}``.
@@ -465,6 +468,7 @@ def write_rollout_mcap(
                     "world_size_m": f"{size_m[0]:g}x{size_m[1]:g}",
                     "frame_id": FRAME_ID,
                     "code_version": __version__,
+                    **{str(k): str(v) for k, v in (extra_metadata or {}).items()},
                 },
             )
             writer.finish()

@@ -717,6 +717,25 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
+SAMPLER_NAMES = {"ddim": "DDIM", "dpm++": "DPM-Solver++(2M)"}
+
+
+def sampling_used(results: pa.Table | Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """``{controller: {"sampler", "sampling_steps"}}`` for the controllers that sample (MADP), from
+    the ``sampler`` / ``sampling_steps`` columns of ``results.parquet`` (absent in older tables: {})."""
+    if not (_has_column(results, "sampler") and _has_column(results, "sampling_steps")):
+        return {}
+    ctrl, smp, steps = _column(results, "controller"), _column(results, "sampler"), _column(results, "sampling_steps")
+    out: dict[str, dict[str, Any]] = {}
+    for c in order_controllers(sorted(set(ctrl[smp != ""].tolist()))):
+        sel = (ctrl == c) & (smp != "")
+        keys = np.unique(np.char.add(np.char.add(smp[sel].astype(str), "|"), steps[sel].astype(np.int64).astype(str)))
+        pairs = [(k.split("|")[0], int(k.split("|")[1])) for k in keys.tolist()]
+        out[c] = {"sampler": "/".join(p[0] for p in pairs), "sampling_steps": pairs[0][1] if len(pairs) == 1
+                  else [p[1] for p in pairs]}
+    return out
+
+
 def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
                  confidence: float = CONFIDENCE) -> dict[str, Path]:
     """Write ``summary.json``, ``summary.md`` and the PNG plots of one suite into ``suite_dir``.
@@ -741,6 +760,7 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
     results_path, curves_path = suite_dir / "results.parquet", suite_dir / "curves.parquet"
     results, _ = _select_suite(pq.read_table(results_path), suite)
     summary = summarize(results, suite, confidence)
+    summary["sampling"] = sampling_used(results)
     controllers, groups = summary["controllers"], summary["groups"]
     colors = _color_map(order_controllers(list(controllers) + (
         _column(pq.read_table(curves_path, columns=["controller"]), "controller").tolist()
@@ -802,6 +822,10 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
 
     # Markdown.
     md = [markdown_table(summary, suite).rstrip("\n")]
+    if summary["sampling"]:
+        md += ["", "MADP sampling: " + "; ".join(
+            f"{_display(c)}: {SAMPLER_NAMES.get(v['sampler'], v['sampler'])}, S = {v['sampling_steps']}"
+            for c, v in summary["sampling"].items()) + "."]
     plots = [name for name in written if name.endswith(".png")]
     if plots:
         md += ["", "Plots:", ""] + [f"![{name[:-4]}]({name})" for name in plots]

@@ -2,7 +2,7 @@
 
 Layout of ``OUT/<suite>/``::
 
-    config.json            suite, steps, controllers, DDIM settings, checkpoint checksums
+    config.json            suite, steps, controllers, MADP sampler settings, checkpoint checksums
     jobs/<env>-<controller>.npz   one finished rollout: cost curve, step times (written atomically)
     curves.parquet         normalised cost per (group, env, controller, step)
     results.parquet        final cost and wall time per control step per (group, env, controller)
@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from madp.data_schema.manifest import sha256_file
+from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
 from madp.sim import ClairvoyantCVT, CoverageEnv, DecentralizedCVT
 
 from .suites import EnvSpec, suite_envs
@@ -42,7 +43,8 @@ class EvalConfig:
     controllers: tuple[str, ...] = ORDER
     lpac: str | None = None  # checkpoint paths (None: the shipped ones, if any)
     madp: str | None = None
-    ddim_steps: int = 50
+    sampler: str = DEFAULT_SAMPLER
+    sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
     workers: int = 0
     record: int = 0
@@ -73,7 +75,15 @@ def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
     if name == "lpac":
         return LPACPolicy(_load_model("lpac", cfg.lpac))
     mode = "decentralized" if name == "madp" else "centralized"
-    return MADPPolicy(_load_model("madp", cfg.madp), mode, cfg.ddim_steps, cfg.eta, seed=spec.seed)
+    return MADPPolicy(_load_model("madp", cfg.madp), mode, cfg.sampling_steps, cfg.eta, seed=spec.seed,
+                      sampler=cfg.sampler)
+
+
+def sampling_settings(cfg: EvalConfig, controller: str) -> dict:
+    """The sampler settings a controller used (MADP), for tables and recordings; {} for the others."""
+    if not controller.startswith("madp"):
+        return {}
+    return {"sampler": cfg.sampler, "sampling_steps": cfg.sampling_steps, "eta": cfg.eta}
 
 
 def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, record: bool = False) -> dict:
@@ -114,7 +124,8 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
         (suite_dir / "rollouts").mkdir(parents=True, exist_ok=True)
         write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map, positions, actions,
                            controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
-                           title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})")
+                           title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
+                           extra_metadata=sampling_settings(cfg, controller))
     _save_job(job_file, costs, step_s, env.num_robots, len(scenario.features))
     return {"key": spec.key, "controller": controller}
 
@@ -229,8 +240,8 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
     envs = suite_envs(suite, cfg.num_envs, cfg.cities)
     suite_dir = Path(cfg.out) / suite
-    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "ddim_steps": cfg.ddim_steps,
-                "eta": cfg.eta, "record": cfg.record, "env_keys": [e.key for e in envs],
+    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
+                "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "record": cfg.record, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs]}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
@@ -294,7 +305,8 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
 
     curves = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "step", "cost")}
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
-                               "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch")}
+                               "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
+                               "sampler", "sampling_steps")}
     for e in envs:
         for c in cfg.controllers:
             d = np.load(suite_dir / "jobs" / f"{e.key}-{c}.npz")
@@ -308,10 +320,13 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        final_cost=float(cost[-1]), steps=t - 1, mean_step_ms=float(d["step_s"].mean() * 1e3),
                        num_robots=int(d["num_robots"]), num_features=int(d["num_features"]),
                        sigma_lo=e.params.sigma_range_m[0], sigma_hi=e.params.sigma_range_m[1],
-                       city=e.group if e.city_file else "", launch=e.launch)
+                       city=e.group if e.city_file else "", launch=e.launch,
+                       sampler=sampling_settings(cfg, c).get("sampler", ""),
+                       sampling_steps=sampling_settings(cfg, c).get("sampling_steps", 0))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),
+             "sampling_steps": pa.int32(),
              "num_features": pa.int32(), "scenario_seed": pa.int64()}
     ctab = pa.table({k: pa.array(np.concatenate([np.asarray(x) for x in v]), type=types.get(k)) for k, v in curves.items()})
     rtab = pa.table({k: pa.array(v, type=types.get(k)) for k, v in results.items()})

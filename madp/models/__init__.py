@@ -1,5 +1,5 @@
 """Torch modules of madp: perception CNN, spatial transformer (2-D RoPE, masks), DDPM/DDIM
-schedule, MADP, LPAC-K3, EMA. Knows nothing of files or the simulator.
+schedule with DDIM and DPM-Solver++ samplers, MADP, LPAC-K3, EMA. Knows nothing of files or the simulator.
 
 Shapes used throughout: ``obs [B, N, 4, 32, 32]``, ``pos_m [B, N, 2]`` (metres),
 ``valid [B, N]`` bool (False = padding robot), ``actions_norm [B, N, 2]`` (normalised actions).
@@ -8,13 +8,21 @@ Shapes used throughout: ``obs [B, N, 4, 32, 32]``, ``pos_m [B, N, 2]`` (metres),
 from .attention_mask import (
     attention_mask,
     connected_components_mask,
-    neighbourhood_index,
+    packed_neighbourhood_mask,
     pairwise_offsets,
     radius_adjacency,
 )
 from .config import PRESETS, LPACConfig, MADPConfig, lpac_config, madp_config
 from .diffusion import DDPMSchedule
 from .ema import EMA
+from .samplers import (
+    DEFAULT_SAMPLER,
+    DEFAULT_SAMPLING_STEPS,
+    SAMPLERS,
+    DDIMSampler,
+    DPMSolverMultistepSampler,
+    make_sampler,
+)
 from .madp import MADP, TimestepEmbedding
 from .perception import PerceptionCNN, apply_per_robot
 from .transformer import (
@@ -58,7 +66,13 @@ __all__ = [
     "connected_components_mask",
     "radius_adjacency",
     "pairwise_offsets",
-    "neighbourhood_index",
+    "packed_neighbourhood_mask",
+    "SAMPLERS",
+    "DEFAULT_SAMPLER",
+    "DEFAULT_SAMPLING_STEPS",
+    "DDIMSampler",
+    "DPMSolverMultistepSampler",
+    "make_sampler",
     "RotaryEmbedding2D",
     "apply_rope",
     "MultiHeadAttention",

@@ -18,7 +18,7 @@ __all__ = [
     "radius_adjacency",
     "connected_components_mask",
     "attention_mask",
-    "neighbourhood_index",
+    "packed_neighbourhood_mask",
 ]
 
 
@@ -96,19 +96,17 @@ def attention_mask(pos_m: Tensor, radius: float, valid: Tensor | None = None) ->
     return mask | (eye & ~valid.unsqueeze(-1))
 
 
-def neighbourhood_index(rows: Tensor) -> tuple[Tensor, Tensor]:
-    """Index the members of neighbourhoods, padded to the largest one.
+def packed_neighbourhood_mask(pos_m: Tensor, radius: float, valid: Tensor, group: Tensor) -> Tensor:
+    """Attention mask of neighbourhoods packed side by side: ``[B, T, T]`` bool.
 
-    Args:
-        rows: ``[R, N]`` bool, ``rows[r, j]`` = robot j belongs to neighbourhood r.
-
-    Returns:
-        ``idx [R, M]`` long: the members of each neighbourhood in ascending robot order, then filler
-        indices; ``sub_valid [R, M]`` bool: which slots hold a member. ``M`` = largest membership
-        (at least 1; one host sync to learn it).
+    ``pos_m [B, T, 2]`` the positions of the packed tokens, ``valid [B, T]``, ``group [B, T]`` long: the
+    neighbourhood each token belongs to. Token a may attend to token c iff both are in the same
+    neighbourhood and ``||x_a - x_c|| < radius`` -- the :func:`attention_mask` of that neighbourhood
+    alone, because a neighbourhood is one robot's attention row: every member lies within the
+    radius of that robot, so the neighbourhood is one connected component and the component term is
+    all-true. Padding tokens attend only to themselves.
     """
-    key = (~rows).to(torch.uint8)  # members (0) first; the stable sort keeps robot order
-    key_sorted, idx = torch.sort(key, dim=-1, stable=True)
-    sub_valid = key_sorted == 0
-    m = int(sub_valid.sum(-1).max().clamp_min(1).item()) if rows.numel() else 1
-    return idx[..., :m], sub_valid[..., :m]
+    same = group.unsqueeze(-1) == group.unsqueeze(-2)
+    adj = radius_adjacency(pos_m, radius, valid, self_loops=True) & same
+    eye = torch.eye(pos_m.shape[-2], dtype=torch.bool, device=pos_m.device)
+    return adj | (eye & ~valid.unsqueeze(-1))

@@ -171,9 +171,10 @@ def _bench_train_step(model_name: str, preset: str, batch_size: int, num_robots:
 def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int = 50, num_robots: int = 32,
                 repeats: int = 5, warmup: int = 1, eta: float = 0.0, layout: str = "uniform",
                 dedupe: bool = True, device: torch.device | str = "cpu", seed: int = 0,
-                threads: int | None = None) -> dict[str, Any]:
+                threads: int | None = None, sampler: str = "ddim") -> dict[str, Any]:
     """Median latency of one MADP control step for one swarm of ``num_robots`` robots
-    (``mode``: ``"decentralized"`` or ``"centralized"``).
+    (``mode``: ``"decentralized"`` or ``"centralized"``) with ``sampler`` (``"ddim"`` / ``"dpm++"``) at
+    ``num_steps`` steps.
 
     ``layout``: ``"uniform"`` over the 1024 m world (the usual launch; neighbourhoods of ~5-10
     robots) or ``"square"`` (SPEC §5's square launch, x, y in [115.25, 217.25]: everyone within
@@ -183,11 +184,12 @@ def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int
     neighbourhood batch in decentralized mode). ``threads`` as in :func:`bench_train_step`.
     """
     with _threads(threads):
-        return _bench_infer(preset, mode, num_steps, num_robots, repeats, warmup, eta, layout, dedupe, device, seed)
+        return _bench_infer(preset, mode, num_steps, num_robots, repeats, warmup, eta, layout, dedupe, device, seed,
+                            sampler)
 
 
 def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeats: int, warmup: int, eta: float,
-                 layout: str, dedupe: bool, device: torch.device | str, seed: int) -> dict[str, Any]:
+                 layout: str, dedupe: bool, device: torch.device | str, seed: int, sampler: str) -> dict[str, Any]:
     if mode not in ("decentralized", "centralized"):
         raise ValueError("mode must be 'decentralized' or 'centralized'")
     torch.manual_seed(seed)
@@ -206,13 +208,15 @@ def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeat
     def run() -> None:
         with torch.inference_mode():
             if mode == "decentralized":
-                model.sample_decentralized(obs[0], pos[0], num_steps=num_steps, eta=eta, dedupe=dedupe)
+                model.sample_decentralized(obs[0], pos[0], num_steps=num_steps, eta=eta, dedupe=dedupe,
+                                           sampler=sampler)
             else:
-                model.sample(obs, pos, num_steps=num_steps, eta=eta)
+                model.sample(obs, pos, num_steps=num_steps, eta=eta, sampler=sampler)
 
     times = _timed(run, warmup, repeats, device)
     return {
-        "preset": preset, "mode": mode, "layout": layout, "dedupe": dedupe, "num_steps": num_steps, "num_robots": num_robots,
+        "preset": preset, "mode": mode, "layout": layout, "dedupe": dedupe, "sampler": sampler, "num_steps": num_steps,
+        "num_robots": num_robots,
         "threads": torch.get_num_threads(), "device": str(device),
         "latency_s": statistics.median(times), "latency_min_s": min(times), "latency_max_s": max(times),
         "max_neighbourhood": max_hood, "mean_neighbourhood": mean_hood,

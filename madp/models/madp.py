@@ -4,7 +4,7 @@ Per robot i: ``O_i [4, 32, 32] --CNN--> z_i [32]``; token ``[z_i, p_i] [34]`` (`
 ``--Linear--> [d_model]``; the spatial-transformer encoder Psi_E turns the tokens into a memory
 (once per control step). The decoder Psi_D maps noisy normalised actions ``U_k [N, 2]`` plus an
 embedding of the diffusion step k, cross-attending to the memory, to the predicted noise
-``eps_hat [N, 2]``; DDIM runs it S times.
+``eps_hat [N, 2]``; the sampler (DDIM or DPM-Solver++, :mod:`.samplers`) runs it S times.
 
 Position feature ``p_i`` (``config.pos_token``). The paper writes the token as ``[z_i, x_i]`` with
 the absolute position, yet argues the spatial transformer is shift equivariant; an absolute
@@ -29,11 +29,12 @@ import torch
 from torch import Tensor, nn
 
 from .action_stats import ActionStatsMixin
-from .attention_mask import attention_mask, neighbourhood_index, pairwise_offsets
+from .attention_mask import attention_mask, packed_neighbourhood_mask, pairwise_offsets
 from .config import MADPConfig
 from .diffusion import DDPMSchedule
 from .perception import PerceptionCNN, apply_per_robot
-from .transformer import RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTransformerEncoder
+from .samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, make_sampler, sample_loop
+from .transformer import RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTransformerEncoder, attention_bias
 
 __all__ = ["MADP", "TimestepEmbedding"]
 
@@ -60,6 +61,21 @@ class TimestepEmbedding(nn.Module):
         return self.mlp(self.sinusoidal(k).to(w.dtype))
 
 
+def pack_rows(sizes: Tensor, row_len: int) -> tuple[Tensor, Tensor]:
+    """Next-fit packing of items of ``sizes [U]`` (each <= row_len) into rows of ``row_len``:
+    ``(row [U], offset [U])`` long, items in their given order. One pass over U python ints
+    (U <= robots in the batch, once per control step)."""
+    row, off, r, fill = [], [], 0, 0
+    for s in sizes.tolist():
+        if fill + s > row_len:
+            r, fill = r + 1, 0
+        row.append(r)
+        off.append(fill)
+        fill += s
+    dev = sizes.device
+    return torch.tensor(row, dtype=torch.long, device=dev), torch.tensor(off, dtype=torch.long, device=dev)
+
+
 class MADP(ActionStatsMixin):
     """Multi-agent diffusion policy (encoder once, decoder S times).
 
@@ -67,13 +83,16 @@ class MADP(ActionStatsMixin):
 
     * ``loss(obs, pos_m, actions_norm, valid=None, generator=None)`` (= ``forward``): DDPM
       epsilon-MSE over valid robots.
-    * ``sample(obs, pos_m, num_steps=50, eta=0.0, ...)``: *centralized-masked* sampling, the whole
+    * ``sample(obs, pos_m, num_steps, eta=0.0, sampler=...)``: *centralized-masked* sampling, the whole
       swarm in one pass with the attention mask (a fast approximation of decentralized execution:
       information can travel several hops through the layers).
     * ``sample_decentralized(obs, pos_m, ...)``: *decentralized* execution: every robot runs the model
       on its own neighbourhood (itself + the robots in its attention mask) and keeps only its own
-      action; all neighbourhoods run as one padded batch (identical ones computed once).
+      action; all neighbourhoods run packed side by side (identical ones computed once).
     """
+
+    #: Row length (tokens) of the packed layout of :meth:`sample_decentralized` (measured: ``madp bench infer``).
+    decentralized_row_tokens: int = 32
 
     def __init__(self, config: MADPConfig | None = None):
         super().__init__()
@@ -194,34 +213,44 @@ class MADP(ActionStatsMixin):
         return self.loss(obs, pos_m, actions_norm, valid, generator)
 
     # ----------------------------------------------------------------------------------- sampling
-    def _ddim(self, memory: Tensor, pos_m: Tensor, mask: Tensor, x: Tensor, num_steps: int, eta: float,
-              step_noise: Callable[[int], Tensor] | None, clip_x0: float | None) -> Tensor:
-        """Algorithm 1 loop: ``x = U_{k_S} [B, N, 2]`` -> ``U_0``. The memory's cross-attention K/V and
-        the RoPE angles are computed once and reused for all S decoder passes."""
+    def _sample_loop(self, memory: Tensor, pos_m: Tensor, mask: Tensor, x: Tensor, sampler,
+                     step_noise: Callable[[int], Tensor] | None) -> Tensor:
+        """Reverse diffusion ``x = U_{k_S} [B, N, 2]`` -> ``U_0`` with ``sampler`` (:mod:`.samplers`).
+
+        Computed once and reused for all S decoder passes: every layer's cross-attention K/V of the
+        memory, the RoPE angles, the attention mask as an additive bias, and the time embedding of
+        each of the S steps (one MLP call on ``[S]``)."""
         rope = self.rope(pos_m, self.dtype)
         memory_kv = self.decoder.memory_kv(memory, rope)
-        seq = self.schedule.ddim_timesteps(num_steps).tolist()
-        for i in range(num_steps):
-            k, k_prev = seq[i], seq[i + 1]
-            eps = self._denoise(x, k, memory_kv, rope, mask)
-            noise = step_noise(i) if (eta > 0 and step_noise is not None) else None
-            x = self.schedule.step(eps, k, x, eta=eta, prev_k=k_prev, noise=noise, clip_x0=clip_x0)
-        return x
+        bias = attention_bias(mask, self.dtype)
+        temb = self.time_embed(torch.tensor(sampler.timesteps, device=x.device, dtype=torch.long))  # [S, d]
+
+        def denoise(x_k: Tensor, i: int, k: int) -> Tensor:
+            h = self.action_in(x_k.to(self.dtype)) + temb[i]
+            return self.head(self.decoder(h, bias, rope, memory_kv))
+
+        return sample_loop(sampler, denoise, x, step_noise)
+
+    def make_sampler(self, sampler: str, num_steps: int, eta: float = 0.0, clip_x0: float | None = None):
+        """A fresh ``"ddim"`` / ``"dpm++"`` sampler on this model's schedule (see :mod:`.samplers`)."""
+        return make_sampler(sampler, self.schedule, num_steps, eta, clip_x0)
 
     @torch.no_grad()
-    def sample(self, obs: Tensor, pos_m: Tensor, num_steps: int = 50, eta: float = 0.0,
+    def sample(self, obs: Tensor, pos_m: Tensor, num_steps: int = DEFAULT_SAMPLING_STEPS, eta: float = 0.0,
                generator: torch.Generator | None = None, valid: Tensor | None = None,
                noise: Tensor | None = None, step_noise: Tensor | None = None,
-               clip_x0: float | None = None) -> Tensor:
-        """Centralized-masked DDIM sampling of the whole swarm -> ``actions_norm [B, N, 2]``.
+               clip_x0: float | None = None, sampler: str = DEFAULT_SAMPLER) -> Tensor:
+        """Centralized-masked sampling of the whole swarm -> ``actions_norm [B, N, 2]``.
 
         Args:
-            num_steps: S DDIM steps (paper: 50); eta: DDIM noise scale in [0, 1].
-            generator: draws ``U_K`` and (eta > 0) the per-step noise, in that order, each step
+            num_steps: S sampler steps; sampler: ``"ddim"`` (paper Algorithm 1, η in [0, 1]) or
+                ``"dpm++"`` (DPM-Solver++(2M), η = 0); eta: DDIM noise scale.
+            generator: draws ``U_K`` and (η > 0) the per-step noise, in that order, each step
                 one ``[B, N, 2]`` draw; must be on the tensors' device.
             noise: optional ``U_K [B, N, 2]``; step_noise: optional ``[S, B, N, 2]``.
         Padding rows of the result are 0.
         """
+        solver = self.make_sampler(sampler, num_steps, eta, clip_x0)
         b, n = pos_m.shape[:2]
         memory, mask = self.encode(obs, pos_m, valid)
         shape = (b, n, self.config.action_dim)
@@ -230,21 +259,22 @@ class MADP(ActionStatsMixin):
 
         def draw(i: int) -> Tensor:
             if step_noise is not None:
-                return step_noise[i]
+                return step_noise[i].to(memory.dtype)
             return torch.randn(shape, generator=generator, device=memory.device, dtype=memory.dtype)
 
-        x = self._ddim(memory, pos_m, mask, noise.to(memory.dtype), num_steps, eta, draw, clip_x0)
+        x = self._sample_loop(memory, pos_m, mask, noise.to(memory.dtype), solver, draw)
         if valid is not None:
             x = x * valid.unsqueeze(-1).to(x.dtype)
         return x
 
     @torch.no_grad()
-    def sample_decentralized(self, obs: Tensor, pos_m: Tensor, num_steps: int = 50, eta: float = 0.0,
-                             generator: torch.Generator | None = None, valid: Tensor | None = None,
-                             noise: Tensor | None = None, step_noise: Tensor | None = None,
-                             independent_noise: bool = False, dedupe: bool = True,
-                             clip_x0: float | None = None) -> Tensor:
-        """Decentralized DDIM sampling: ``obs [N, 4, 32, 32]``, ``pos_m [N, 2]`` -> ``actions_norm [N, 2]``
+    def sample_decentralized(self, obs: Tensor, pos_m: Tensor, num_steps: int = DEFAULT_SAMPLING_STEPS,
+                             eta: float = 0.0, generator: torch.Generator | None = None,
+                             valid: Tensor | None = None, noise: Tensor | None = None,
+                             step_noise: Tensor | None = None, independent_noise: bool = False,
+                             dedupe: bool = True, clip_x0: float | None = None,
+                             sampler: str = DEFAULT_SAMPLER) -> Tensor:
+        """Decentralized sampling: ``obs [N, 4, 32, 32]``, ``pos_m [N, 2]`` -> ``actions_norm [N, 2]``
         (a leading batch dimension ``[B, N, ...]`` is accepted too).
 
         What each robot does, as in the paper's Fig. 1: robot j computes its own token
@@ -253,22 +283,28 @@ class MADP(ActionStatsMixin):
         of its neighbourhood ``M_i`` (itself + the robots in row i of the attention mask, with the
         mask recomputed among just those robots) and keeps only its own action.
 
-        All neighbourhoods run as one padded batch ``[U, M, ...]`` (M = largest neighbourhood,
-        ``valid`` marking real slots); nothing loops over robots.
+        Layout (nothing loops over robots): the ``sum_i |M_i|`` real tokens of all neighbourhoods (of
+        all B swarms) are packed, each neighbourhood whole, into rows of ``row_len`` tokens
+        (:attr:`decentralized_row_tokens`, or the largest neighbourhood if that is longer; next fit),
+        ``[R, row_len, ...]``, and attention is block-diagonal within a row
+        (:func:`packed_neighbourhood_mask`), so it never mixes two neighbourhoods. Per-token layers
+        run on the real tokens plus only the tail of each row, and attention costs ``row_len`` per
+        token rather than the whole swarm's token count.
 
         Noise: by default the noise of robot j is the same in every neighbourhood that contains j
         (``U_K`` and each step's noise are drawn once per swarm, ``[B, N, 2]``, and gathered), as if
         the robots derived each other's noise from a shared seed and robot id. Where neighbourhoods
         are the whole swarm the result equals :meth:`sample` with the same generator/noise.
-        ``independent_noise=True`` draws every robot's neighbourhood noise separately (``noise`` /
-        ``step_noise`` are then not accepted).
+        ``independent_noise=True`` draws every token's noise separately, ``[B, T, 2]`` per draw
+        (``noise`` / ``step_noise`` are then not accepted).
 
         ``dedupe`` (only with shared noise): robots whose neighbourhoods are the same set of robots
         would run exactly the same computation (the model is permutation equivariant), so each
-        distinct neighbourhood is computed once (U = number of distinct neighbourhoods <= N) and
-        every member reads its own action from it. Results equal ``dedupe=False`` up to float
-        rounding; in a fully connected swarm this is N times less work.
+        distinct neighbourhood is computed once and every member reads its own action from it.
+        Results equal ``dedupe=False`` up to float rounding; in a fully connected swarm this is N
+        times less work.
         """
+        solver = self.make_sampler(sampler, num_steps, eta, clip_x0)
         single = pos_m.dim() == 2
         if single:
             obs, pos_m = obs.unsqueeze(0), pos_m.unsqueeze(0)
@@ -285,47 +321,69 @@ class MADP(ActionStatsMixin):
         mask = self.attention_mask(pos_m, valid)
         tokens = self.embed_tokens(obs, pos_m, mask, valid)  # [B, N, 34], one per robot
 
-        # neighbourhood membership per ego; padding egos get an empty neighbourhood
+        # Neighbourhood ("unit") membership per ego; padding egos have an empty one.
         rows = (mask & valid.unsqueeze(-1)).reshape(b * n, n)
         ego_batch = torch.arange(b, device=dev).repeat_interleave(n)
         if dedupe and not independent_noise:
             key = torch.cat([ego_batch.unsqueeze(1), rows.long()], dim=1)
-            uniq, unit_of_ego = torch.unique(key, dim=0, return_inverse=True)
+            uniq, unit_of_ego = torch.unique(key, dim=0, return_inverse=True)  # sorted: swarm first
             unit_batch, unit_rows = uniq[:, 0], uniq[:, 1:].bool()
         else:
             unit_of_ego = torch.arange(b * n, device=dev)
             unit_batch, unit_rows = ego_batch, rows
-        idx, unit_valid = neighbourhood_index(unit_rows)  # [U, M]
-        u, m = idx.shape
-        # the ego's slot inside its neighbourhood = number of members before it
-        slot = (rows.reshape(b, n, n).long().cumsum(-1).diagonal(dim1=-2, dim2=-1) - 1).clamp_min(0).reshape(-1)
+        # Pack: token t is robot tok_robot[t] as a member of unit tok_unit[t] (tokens grouped by unit,
+        # robots ascending). Units are laid out whole, side by side, in rows of row_len tokens
+        # (next fit, in unit order); a row may mix swarms since units never see each other.
+        tok_unit, tok_robot = unit_rows.nonzero(as_tuple=True)
+        tok_batch = unit_batch[tok_unit]
+        sizes = unit_rows.sum(1)
+        row_len = max(self.decentralized_row_tokens, int(sizes.max()) if sizes.numel() else 1, 1)
+        row_of_unit, off_of_unit = pack_rows(sizes, row_len)
+        first_tok = sizes.cumsum(0) - sizes
+        tok_row = row_of_unit[tok_unit]
+        tok_slot = off_of_unit[tok_unit] + torch.arange(tok_unit.numel(), device=dev) - first_tok[tok_unit]
+        rows_n = int(row_of_unit.max()) + 1 if row_of_unit.numel() else 1
 
-        def gather(t: Tensor) -> Tensor:
-            """``[B, N, *F] -> [U, M, *F]``: the neighbourhood copies of per-robot data."""
-            return t[unit_batch.unsqueeze(1), idx]
+        def pack(t: Tensor) -> Tensor:
+            """``[B, N, *F] -> [R, row_len, *F]``: every token's copy of its robot's data (0 at padding)."""
+            out = t.new_zeros(rows_n, row_len, *t.shape[2:])
+            out[tok_row, tok_slot] = t[tok_batch, tok_robot]
+            return out
 
-        pos_u = gather(pos_m)
-        mask_u = self.attention_mask(pos_u, unit_valid)
-        memory = self.encode_tokens(gather(tokens), pos_u, mask_u)
+        valid_p = torch.zeros(rows_n, row_len, dtype=torch.bool, device=dev)
+        valid_p[tok_row, tok_slot] = True
+        group_p = torch.full((rows_n, row_len), -1, dtype=torch.long, device=dev)
+        group_p[tok_row, tok_slot] = tok_unit
+        pos_p = pack(pos_m)
+        mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius, valid_p, group_p)
+        memory = self.encode_tokens(pack(tokens), pos_p, mask_p)
 
         dt = memory.dtype
         swarm_shape = (b, n, self.config.action_dim)
-        unit_shape = (u, m, self.config.action_dim)
+        packed_shape = (rows_n, row_len, self.config.action_dim)
         if independent_noise:
-            x = torch.randn(unit_shape, generator=generator, device=dev, dtype=dt)
+            x = torch.randn(packed_shape, generator=generator, device=dev, dtype=dt)
 
             def draw(i: int) -> Tensor:
-                return torch.randn(unit_shape, generator=generator, device=dev, dtype=dt)
+                return torch.randn(packed_shape, generator=generator, device=dev, dtype=dt)
         else:
             if noise is None:
                 noise = torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt)
-            x = gather(noise.to(dt))
+            x = pack(noise.to(dt))
 
             def draw(i: int) -> Tensor:
                 if step_noise is not None:
-                    return gather(step_noise[i].to(dt))
-                return gather(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
+                    return pack(step_noise[i].to(dt))
+                return pack(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
 
-        x = self._ddim(memory, pos_u, mask_u, x, num_steps, eta, draw, clip_x0)
-        out = x[unit_of_ego, slot].reshape(b, n, -1) * valid.unsqueeze(-1).to(x.dtype)
+        x = self._sample_loop(memory, pos_p, mask_p, x, solver, draw)
+        # Each ego reads its own action: the token of (its unit, itself).
+        tok_of = torch.zeros(unit_rows.shape, dtype=torch.long, device=dev)
+        tok_of[tok_unit, tok_robot] = torch.arange(tok_unit.numel(), device=dev)
+        ego_tok = tok_of[unit_of_ego, torch.arange(n, device=dev).repeat(b)]
+        if tok_unit.numel():
+            own = x[tok_row[ego_tok], tok_slot[ego_tok]]
+        else:  # no valid robot at all
+            own = x.new_zeros(b * n, self.config.action_dim)
+        out = own.reshape(b, n, -1) * valid.unsqueeze(-1).to(x.dtype)
         return out[0] if single else out

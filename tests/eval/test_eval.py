@@ -58,7 +58,7 @@ def test_cities_suite_reads_city_files():
 
 
 def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
-    cfg = EvalConfig(suite="launch", out=str(tmp_path), num_envs=1, steps=12, workers=1, record=1, ddim_steps=3,
+    cfg = EvalConfig(suite="launch", out=str(tmp_path), num_envs=1, steps=12, workers=1, record=1, sampling_steps=3,
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     cfg, used = available_controllers(cfg, ("clairvoyant", "dcvt", "lpac", "madp", "madp_central"), explicit=True)
     run_suite(cfg, "launch", progress=False)
@@ -74,6 +74,18 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
     assert list(d.glob("*.png"))
     rollouts = sorted(p.name for p in (d / "rollouts").glob("*.mcap"))
     assert rollouts == sorted(f"uniform-000-{c}.mcap" for c in used)  # first environment only
+    # the sampler and S are named in the tables, the summary and the recordings (MADP only)
+    madp_rows = results[results.controller.str.startswith("madp")]
+    assert (madp_rows.sampler == cfg.sampler).all() and (madp_rows.sampling_steps == 3).all()
+    assert (results[~results.controller.str.startswith("madp")].sampler == "").all()
+    summary = json.loads((d / "summary.json").read_text())
+    assert summary["sampling"]["madp"] == {"sampler": cfg.sampler, "sampling_steps": 3}
+    assert "S = 3" in (d / "summary.md").read_text()
+    from mcap.reader import make_reader
+
+    with open(d / "rollouts" / "uniform-000-madp.mcap", "rb") as f:
+        md = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["madp.rollout"]
+    assert (md["sampler"], md["sampling_steps"]) == (cfg.sampler, "3")
     # resume: drop one finished job, run again, tables identical
     before = (d / "results.parquet").read_bytes()
     (d / "jobs" / "line-000-dcvt.npz").unlink()
@@ -89,7 +101,7 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
 
 
 def test_new_checkpoint_reruns_only_its_controllers(tmp_path, checkpoints):
-    cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=3, workers=1, record=1, ddim_steps=2,
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=3, workers=1, record=1, sampling_steps=2,
                      controllers=("dcvt", "lpac", "madp_central"),
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     run_suite(cfg, "uniform", progress=False)
@@ -126,12 +138,17 @@ def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
     assert r.returncode == 2 and "--suite" in r.stderr
     r = run("--controllers", "dcvt,foo")
     assert r.returncode == 2 and "foo" in r.stderr
+    r = run("--controllers", "dcvt", "--sampler", "euler")
+    assert r.returncode == 2 and "--sampler" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = run("--controllers", "dcvt", "--sampler", "dpm++", "--eta", "0.5")
+    assert r.returncode == 2 and "deterministic" in r.stderr
 
 
-@pytest.mark.parametrize("controller,eta", [("lpac", 0.0), ("madp_central", 0.5), ("madp", 0.0)])
-def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller, eta):
+@pytest.mark.parametrize("controller,sampler,eta", [("lpac", "ddim", 0.0), ("madp_central", "ddim", 0.5),
+                                                    ("madp", "dpm++", 0.0), ("madp", "ddim", 0.5)])
+def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller, sampler, eta):
     """Learned controllers run several environments per policy call; each keeps its own noise."""
-    cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=4, ddim_steps=3, eta=eta,
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=4, sampler=sampler, sampling_steps=3, eta=eta,
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     envs = suite_envs("uniform", 3)
     run_batch(cfg, envs, controller, tmp_path / "batch")

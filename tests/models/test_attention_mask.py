@@ -2,7 +2,7 @@ import numpy as np
 import torch
 from scipy.sparse.csgraph import connected_components
 
-from madp.models import attention_mask, connected_components_mask, neighbourhood_index, radius_adjacency
+from madp.models import attention_mask, connected_components_mask, packed_neighbourhood_mask, radius_adjacency
 
 
 def test_mask_is_distance_below_radius_including_self(gen):
@@ -34,12 +34,18 @@ def test_padding_never_attends_nor_is_attended():
     assert mask[0][np.ix_([0, 1, 3], [0, 1, 3])].all()
 
 
-def test_neighbourhood_index_lists_members_in_order():
-    pos = torch.tensor([[[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [900.0, 900.0]]])
-    rows = attention_mask(pos, 150.0)[0]
-    idx, sub_valid = neighbourhood_index(rows)
-    assert idx.shape == (4, 3)
-    assert idx[1].tolist() == [0, 1, 2]
-    assert idx[0, :2].tolist() == [0, 1] and idx[3, :1].tolist() == [3]
-    assert sub_valid.tolist() == [[True, True, False], [True, True, True], [True, True, False],
-                                  [True, False, False]]
+def test_packed_neighbourhood_mask_is_each_neighbourhoods_own_mask():
+    """Packing two neighbourhoods side by side must not let them see each other (fails if the
+    group term is dropped) and must equal attention_mask of each neighbourhood alone."""
+    pos = torch.tensor([[0.0, 0.0], [100.0, 0.0], [200.0, 0.0], [240.0, 0.0]])
+    hoods = [[0, 1, 2], [1, 2, 3]]  # the rows of robots 1 and 2 for radius 150
+    members = [j for h in hoods for j in h]
+    group = torch.tensor([[g for g, h in enumerate(hoods) for _ in h] + [-1]])
+    pos_p = torch.cat([pos[members], torch.zeros(1, 2)])[None]
+    valid = group >= 0
+    packed = packed_neighbourhood_mask(pos_p, 150.0, valid, group)[0]
+    for g, h in enumerate(hoods):
+        sl = slice(3 * g, 3 * g + 3)
+        assert torch.equal(packed[sl, sl], attention_mask(pos[h][None], 150.0)[0])
+    assert not packed[:3, 3:].any() and not packed[3:6, :3].any()
+    assert packed[6].tolist() == [False] * 6 + [True]

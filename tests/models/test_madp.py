@@ -128,15 +128,15 @@ def test_padding_does_not_change_real_robots(tiny_madp, gen):
     assert torch.allclose(a[:, :5], b, atol=1e-5)
 
 
-@pytest.mark.parametrize("eta", [0.0, 0.7])
-def test_decentralized_equals_centralized_when_everyone_sees_everyone(tiny_madp, gen, eta):
+@pytest.mark.parametrize("sampler,eta", [("ddim", 0.0), ("ddim", 0.7), ("dpm++", 0.0)])
+def test_decentralized_equals_centralized_when_everyone_sees_everyone(tiny_madp, gen, sampler, eta):
     n = 7
     obs = random_obs(n, generator=gen)
     pos = grid_positions(n, 400.0, 550.0, gen)   # diameter < 256 m: one full neighbourhood
     assert tiny_madp.attention_mask(pos[None]).all()
-    cen = tiny_madp.sample(obs[None], pos[None], num_steps=20, eta=eta,
+    cen = tiny_madp.sample(obs[None], pos[None], num_steps=20, eta=eta, sampler=sampler,
                            generator=torch.Generator().manual_seed(5))[0]
-    dec = tiny_madp.sample_decentralized(obs, pos, num_steps=20, eta=eta,
+    dec = tiny_madp.sample_decentralized(obs, pos, num_steps=20, eta=eta, sampler=sampler,
                                          generator=torch.Generator().manual_seed(5))
     assert torch.allclose(dec, cen, atol=1e-4)
 
@@ -164,7 +164,8 @@ def test_decentralized_batched_with_padding(tiny_madp, gen):
     assert torch.allclose(both[0], first, atol=1e-5)
     assert torch.allclose(both[1, :4], second, atol=1e-5)
     assert torch.equal(both[1, 4:], torch.zeros(2, 2))
-    ind = tiny_madp.sample_decentralized(obs, pos, num_steps=5, eta=1.0, valid=valid, independent_noise=True,
+    ind = tiny_madp.sample_decentralized(obs, pos, num_steps=5, eta=1.0, sampler="ddim", valid=valid,
+                                         independent_noise=True,
                                          generator=torch.Generator().manual_seed(0))
     assert torch.isfinite(ind).all()
 
@@ -174,8 +175,8 @@ def test_sampling_is_reproducible_and_eta_one_runs(tiny_madp, gen):
     a = tiny_madp.sample(obs, pos, num_steps=8, generator=torch.Generator().manual_seed(3))
     b = tiny_madp.sample(obs, pos, num_steps=8, generator=torch.Generator().manual_seed(3))
     assert a.shape == (2, 8, 2) and torch.equal(a, b)
-    c = tiny_madp.sample(obs, pos, num_steps=8, eta=1.0, generator=torch.Generator().manual_seed(3))
-    d = tiny_madp.sample(obs, pos, num_steps=8, eta=1.0, generator=torch.Generator().manual_seed(4))
+    c = tiny_madp.sample(obs, pos, num_steps=8, eta=1.0, sampler="ddim", generator=torch.Generator().manual_seed(3))
+    d = tiny_madp.sample(obs, pos, num_steps=8, eta=1.0, sampler="ddim", generator=torch.Generator().manual_seed(4))
     assert torch.isfinite(c).all() and not torch.allclose(c, d)
 
 
@@ -205,18 +206,49 @@ def test_state_dict_round_trip_through_safetensors(tmp_path, gen):
     assert torch.equal(eps_hat(clone, obs, pos, x, k), eps_hat(model, obs, pos, x, k))
 
 
-@pytest.mark.parametrize("eta", [0.0, 0.5])
-def test_decentralized_dedupe_matches_per_robot_computation(tiny_madp, gen, eta):
+@pytest.mark.parametrize("sampler,eta", [("ddim", 0.0), ("ddim", 0.5), ("dpm++", 0.0)])
+def test_decentralized_dedupe_matches_per_robot_computation(tiny_madp, gen, sampler, eta):
     obs = random_obs(2, 12, generator=gen)
     pos = torch.stack([torch.cat([grid_positions(6, 100.0, 250.0, gen), grid_positions(6, 200.0, 900.0, gen)])
                        for _ in range(2)])
     valid = torch.ones(2, 12, dtype=torch.bool)
     valid[1, -3:] = False
-    a = tiny_madp.sample_decentralized(obs, pos, num_steps=10, eta=eta, valid=valid, dedupe=True,
+    a = tiny_madp.sample_decentralized(obs, pos, num_steps=10, eta=eta, valid=valid, dedupe=True, sampler=sampler,
                                        generator=torch.Generator().manual_seed(9))
-    b = tiny_madp.sample_decentralized(obs, pos, num_steps=10, eta=eta, valid=valid, dedupe=False,
+    b = tiny_madp.sample_decentralized(obs, pos, num_steps=10, eta=eta, valid=valid, dedupe=False, sampler=sampler,
                                        generator=torch.Generator().manual_seed(9))
     assert torch.allclose(a, b, atol=1e-5)
+
+
+@pytest.mark.parametrize("sampler", ["ddim", "dpm++"])
+def test_decentralized_equals_each_robot_running_the_model_on_its_own_neighbourhood(tiny_madp, gen, sampler):
+    """The reference of the paper's decentralized execution, one robot at a time: robot i takes the
+    tokens its neighbours computed for themselves, runs encoder and sampler on just its
+    neighbourhood (mask recomputed among those robots, with the component term) and keeps its own
+    action. Overlapping, unequal neighbourhoods, two swarms, padding. Fails if packed
+    neighbourhoods see each other, if an ego reads another slot, or if noise is not shared."""
+    b, n = 2, 10
+    obs = random_obs(b, n, generator=gen)
+    pos = torch.stack([grid_positions(n, 0.0, 700.0, gen) for _ in range(b)])
+    valid = torch.ones(b, n, dtype=torch.bool)
+    valid[1, -2:] = False
+    noise = torch.randn(b, n, 2, generator=gen)
+    got = tiny_madp.sample_decentralized(obs, pos, num_steps=6, valid=valid, noise=noise, sampler=sampler)
+    mask = tiny_madp.attention_mask(pos, valid)
+    tokens = tiny_madp.embed_tokens(obs, pos, mask, valid)
+    sizes = set()
+    for s in range(b):
+        for i in range(int(valid[s].sum())):
+            hood = mask[s, i].nonzero().flatten()
+            sizes.add(len(hood))
+            p = pos[s, hood][None]
+            m = tiny_madp.attention_mask(p)
+            memory = tiny_madp.encode_tokens(tokens[s, hood][None], p, m)
+            x = tiny_madp._sample_loop(memory, p, m, noise[s, hood][None], tiny_madp.make_sampler(sampler, 6), None)
+            own = int((hood == i).nonzero())
+            assert torch.allclose(got[s, i], x[0, own], atol=1e-5), (s, i)
+    assert len(sizes) > 2  # neighbourhoods of several sizes, so they overlap without being equal
+    assert torch.equal(got[1, -2:], torch.zeros(2, 2))
 
 
 def test_paper_preset_structure():
