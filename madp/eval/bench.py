@@ -97,7 +97,7 @@ def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[in
                      "eval_ms_per_env_step": step_ms[(sampler, s)]})
     rows.sort(key=lambda r: (r["sampler"], r["steps"]))
     s_star = {smp: min((r["steps"] for r in rows if r["sampler"] == smp and r["within_one_se"]), default=None)
-              for smp in grid}
+              for smp in sorted({r["sampler"] for r in rows})}
     return {"envs": n, "steps": steps, "baseline": {"sampler": BASELINE[0], "steps": BASELINE[1],
                                                     "mean": float(base.mean()), "se": se_base},
             "centralized_ddim50": {"mean": float(central.mean()), "eval_ms_per_env_step": step_ms["central"]},
@@ -157,7 +157,7 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
                 base = base or r["latency_s"]
                 lat.append({**r, "sampler": smp, "speedup_vs_ddim50": base / r["latency_s"]})
     out["latency"] = lat
-    if out["sweep"]:
+    if out["sweep"] and any(x["preset"] == "cpu" and x["mode"] == "decentralized" for x in lat):
         cands = [x for x in lat if x["preset"] == "cpu" and x["mode"] == "decentralized"]
         best = min(cands, key=lambda x: x["latency_s"])
         out["best"] = {"sampler": best["sampler"], "steps": best["num_steps"]}

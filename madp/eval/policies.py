@@ -80,15 +80,20 @@ class LPACPolicy:
 
 class MADPPolicy:
     """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`);
-    ``sampler`` / ``num_steps`` / ``eta`` choose the reverse diffusion (see :mod:`madp.models.samplers`)."""
+    ``sampler`` / ``num_steps`` / ``eta`` choose the reverse diffusion (see :mod:`madp.models.samplers`).
+
+    ``fixed_noise``: each robot draws its initial noise ``U_K`` once per episode and reuses it at
+    every control step (with a deterministic sampler the policy is then a function of the state),
+    instead of a fresh draw per step; per-step noise of DDIM with η > 0 stays fresh."""
 
     def __init__(self, model, mode: str = "decentralized", num_steps: int = DEFAULT_SAMPLING_STEPS, eta: float = 0.0,
-                 seed: int = 0, device: str = "cpu", sampler: str = DEFAULT_SAMPLER):
+                 seed: int = 0, device: str = "cpu", sampler: str = DEFAULT_SAMPLER, fixed_noise: bool = False):
         if mode not in ("decentralized", "centralized"):
             raise ValueError(f"--madp-mode: expected decentralized or centralized, got {mode!r}")
         check_sampler(sampler, num_steps, eta)
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(num_steps), float(eta)
-        self.sampler = sampler
+        self.sampler, self.fixed_noise = sampler, bool(fixed_noise)
+        self._fixed: dict[int, torch.Tensor] = {}
         self.stochastic = make_sampler(sampler, model.schedule, num_steps, eta).stochastic
         self.device = torch.device(device)
         self.name = "madp" if mode == "decentralized" else "madp_central"
@@ -97,10 +102,21 @@ class MADPPolicy:
     @property
     def settings(self) -> dict:
         """What names the sampling in tables and recordings."""
-        return {"sampler": self.sampler, "sampling_steps": self.num_steps, "eta": self.eta}
+        return {"sampler": self.sampler, "sampling_steps": self.num_steps, "eta": self.eta,
+                "fixed_noise": self.fixed_noise}
 
     def reset(self, seed: int) -> None:
         self.generator = noise_generator(seed, self.device)
+        self._fixed = {}
+
+    def _initial_noise(self, g: torch.Generator, shape: tuple[int, ...]) -> torch.Tensor:
+        """``U_K`` for one swarm: a fresh draw from ``g``, or with ``fixed_noise`` the episode's first
+        draw from ``g`` (kept per generator: one generator per environment and episode)."""
+        if not self.fixed_noise:
+            return torch.randn(shape, generator=g, device=self.device)
+        if id(g) not in self._fixed:
+            self._fixed[id(g)] = torch.randn(shape, generator=g, device=self.device)
+        return self._fixed[id(g)]
 
     def _sample(self, obs: torch.Tensor, pos: torch.Tensor, **noise) -> torch.Tensor:
         fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
@@ -112,12 +128,16 @@ class MADPPolicy:
 
         ``generator`` (default: the policy's own) lets a caller draw extra samples, e.g. for
         visualisation, without changing the noise the rollout itself uses."""
+        own = generator is None
         generator = generator or self.generator
         obs = torch.from_numpy(env.observations()).to(self.device)
         pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
         obs = obs[None].expand(num_samples, *obs.shape)
         pos = pos[None].expand(num_samples, *pos.shape)
-        u = self.model.denormalize_actions(self._sample(obs, pos, generator=generator)).double().cpu().numpy()
+        noise = {"generator": generator}
+        if own and self.fixed_noise and num_samples == 1:
+            noise["noise"] = self._initial_noise(generator, (1, env.num_robots, self.model.config.action_dim))
+        u = self.model.denormalize_actions(self._sample(obs, pos, **noise)).double().cpu().numpy()
         return np.stack([_clip_speed(x, env.params.max_speed_mps) for x in u])
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
@@ -131,7 +151,7 @@ class MADPPolicy:
         draw it (U_K, then one draw per step when the sampler is stochastic: DDIM with η > 0), so
         batching changes only float rounding."""
         def draws(g: torch.Generator, shape) -> tuple[torch.Tensor, torch.Tensor | None]:
-            first = torch.randn(shape, generator=g, device=self.device)
+            first = self._initial_noise(g, shape)
             steps = (torch.stack([torch.randn(shape, generator=g, device=self.device) for _ in range(self.num_steps)])
                      if self.stochastic else None)
             return first, steps

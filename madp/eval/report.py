@@ -733,6 +733,8 @@ def sampling_used(results: pa.Table | Mapping[str, Any]) -> dict[str, dict[str, 
         pairs = [(k.split("|")[0], int(k.split("|")[1])) for k in keys.tolist()]
         out[c] = {"sampler": "/".join(p[0] for p in pairs), "sampling_steps": pairs[0][1] if len(pairs) == 1
                   else [p[1] for p in pairs]}
+        if _has_column(results, "fixed_noise") and _column(results, "fixed_noise")[sel].astype(bool).any():
+            out[c]["fixed_noise"] = True
     return out
 
 
@@ -825,6 +827,7 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
     if summary["sampling"]:
         md += ["", "MADP sampling: " + "; ".join(
             f"{_display(c)}: {SAMPLER_NAMES.get(v['sampler'], v['sampler'])}, S = {v['sampling_steps']}"
+            + (", initial noise fixed per episode" if v.get("fixed_noise") else "")
             for c, v in summary["sampling"].items()) + "."]
     plots = [name for name in written if name.endswith(".png")]
     if plots:

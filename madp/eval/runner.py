@@ -29,6 +29,9 @@ from madp.sim import ClairvoyantCVT, CoverageEnv, DecentralizedCVT
 
 from .suites import EnvSpec, suite_envs
 
+#: Settings added after suites were first written: an older config.json without them had these values.
+SETTING_DEFAULTS = {"fixed_noise": False}
+
 CLASSICAL = ("clairvoyant", "dcvt")
 LEARNED = ("lpac", "madp", "madp_central")
 ORDER = CLASSICAL + LEARNED
@@ -46,6 +49,7 @@ class EvalConfig:
     sampler: str = DEFAULT_SAMPLER
     sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
+    fixed_noise: bool = False
     workers: int = 0
     record: int = 0
     cities: str | None = None
@@ -76,14 +80,14 @@ def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
         return LPACPolicy(_load_model("lpac", cfg.lpac))
     mode = "decentralized" if name == "madp" else "centralized"
     return MADPPolicy(_load_model("madp", cfg.madp), mode, cfg.sampling_steps, cfg.eta, seed=spec.seed,
-                      sampler=cfg.sampler)
+                      sampler=cfg.sampler, fixed_noise=cfg.fixed_noise)
 
 
 def sampling_settings(cfg: EvalConfig, controller: str) -> dict:
     """The sampler settings a controller used (MADP), for tables and recordings; {} for the others."""
     if not controller.startswith("madp"):
         return {}
-    return {"sampler": cfg.sampler, "sampling_steps": cfg.sampling_steps, "eta": cfg.eta}
+    return {"sampler": cfg.sampler, "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise}
 
 
 def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, record: bool = False) -> dict:
@@ -241,7 +245,7 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     envs = suite_envs(suite, cfg.num_envs, cfg.cities)
     suite_dir = Path(cfg.out) / suite
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
-                "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "record": cfg.record, "env_keys": [e.key for e in envs],
+                "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise, "record": cfg.record, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs]}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
@@ -250,7 +254,7 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
         old = json.loads(cfg_file.read_text())
         # Controllers may be added to a finished suite. A new checkpoint invalidates only the controllers
         # that use it; any other setting that differs invalidates the whole suite.
-        changed = {k for k in settings if old.get(k) != settings[k]}
+        changed = {k for k in settings if old.get(k, SETTING_DEFAULTS.get(k)) != settings[k]}
         retrained = {k for k, v in checkpoints.items() if k in old.get("checkpoints", {})
                      and old["checkpoints"][k]["sha256"] != v["sha256"]}
         if changed or retrained:
@@ -306,7 +310,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     curves = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "step", "cost")}
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
-                               "sampler", "sampling_steps")}
+                               "sampler", "sampling_steps", "fixed_noise")}
     for e in envs:
         for c in cfg.controllers:
             d = np.load(suite_dir / "jobs" / f"{e.key}-{c}.npz")
@@ -322,7 +326,8 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        sigma_lo=e.params.sigma_range_m[0], sigma_hi=e.params.sigma_range_m[1],
                        city=e.group if e.city_file else "", launch=e.launch,
                        sampler=sampling_settings(cfg, c).get("sampler", ""),
-                       sampling_steps=sampling_settings(cfg, c).get("sampling_steps", 0))
+                       sampling_steps=sampling_settings(cfg, c).get("sampling_steps", 0),
+                       fixed_noise=sampling_settings(cfg, c).get("fixed_noise", False))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),

@@ -15,20 +15,7 @@ from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
 from madp.models import LPAC, MADP, lpac_config, madp_config
 from madp.training.checkpoint import save_policy
 from tests.conftest import CITIES
-
-META = {"action_stats": {"count": 1, "mean": [0.0, 0.0], "std": [2.0, 2.0]}}
-
-
-@pytest.fixture(scope="module")
-def checkpoints(tmp_path_factory):
-    """Untrained but well-formed policy files (the plumbing, not the skill, is under test here)."""
-    d = tmp_path_factory.mktemp("ckpt")
-    torch.manual_seed(0)
-    for kind, model in (("madp", MADP(madp_config("cpu"))), ("lpac", LPAC(lpac_config("cpu")))):
-        model.set_action_stats(torch.zeros(2), torch.full((2,), 2.0))
-        save_policy(d / f"{kind}.safetensors", model, kind, META)
-    return d
-
+from tests.eval.conftest import META
 
 def test_suites_are_seeded_apart_from_datasets():
     for suite in ("uniform", "sigma", "launch", "scale"):
@@ -144,11 +131,13 @@ def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
     assert r.returncode == 2 and "deterministic" in r.stderr
 
 
-@pytest.mark.parametrize("controller,sampler,eta", [("lpac", "ddim", 0.0), ("madp_central", "ddim", 0.5),
-                                                    ("madp", "dpm++", 0.0), ("madp", "ddim", 0.5)])
-def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller, sampler, eta):
+@pytest.mark.parametrize("controller,sampler,eta,fixed", [("lpac", "ddim", 0.0, False), ("madp_central", "ddim", 0.5, False),
+                                                          ("madp", "dpm++", 0.0, False), ("madp", "ddim", 0.5, False),
+                                                          ("madp", "dpm++", 0.0, True)])
+def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller, sampler, eta, fixed):
     """Learned controllers run several environments per policy call; each keeps its own noise."""
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=4, sampler=sampler, sampling_steps=3, eta=eta,
+                     fixed_noise=fixed,
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     envs = suite_envs("uniform", 3)
     run_batch(cfg, envs, controller, tmp_path / "batch")
@@ -176,3 +165,21 @@ def test_plan_batches_learned_controllers_of_equal_swarm_size(tmp_path):
     (tmp_path / "jobs" / "uniform-002-lpac.npz").touch()
     again = [[e.key for e in es] for c, es, _ in plan_jobs(envs, ("lpac",), tmp_path, record=1, batch=4)]
     assert again[1] == ["uniform-001", "uniform-003", "uniform-004"]  # same chunk, minus the finished one
+
+
+def test_fixed_noise_makes_the_policy_a_function_of_the_state(checkpoints):
+    """--fixed-noise: the same state gives the same action at every step of an episode (a fresh
+    draw per step would not); a new episode (reset) draws new noise."""
+    from madp.eval.policies import MADPPolicy, load
+    from madp.sim import CoverageEnv
+
+    model, _ = load(checkpoints / "madp.safetensors", "madp")
+    env = CoverageEnv(suite_envs("uniform", 1)[0].scenario())
+    fixed = MADPPolicy(model, "decentralized", 3, seed=7, sampler="dpm++", fixed_noise=True)
+    fresh = MADPPolicy(model, "decentralized", 3, seed=7, sampler="dpm++")
+    a, b = fixed(env), fixed(env)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(fresh(env), a)  # the same first draw from the same seed ...
+    assert np.abs(fresh(env) - b).max() > 1e-3     # ... but the next one differs
+    fixed.reset(8)
+    assert np.abs(fixed(env) - a).max() > 1e-3

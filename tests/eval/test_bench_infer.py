@@ -1,0 +1,56 @@
+"""madp bench infer: the closed-loop sweep, S*, the plot and the latency rows (structure, not speed)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from madp.eval.bench import bench_infer_all, parse_grid
+
+
+def test_parse_grid_always_adds_the_ddim50_baseline():
+    assert parse_grid("dpm++:10,5;ddim:10") == {"dpm++": (5, 10), "ddim": (10, 50)}
+    assert parse_grid("dpm++:3") == {"dpm++": (3,), "ddim": (50,)}
+    for bad in ("euler:5", "dpm++:", "dpm++:a", "ddim:0"):
+        with pytest.raises(ValueError, match="--grid"):
+            parse_grid(bad)
+
+
+def test_sweep_s_star_plot_and_latency(tmp_path, checkpoints):
+    r = bench_infer_all(str(checkpoints / "madp.safetensors"), tmp_path, {"dpm++": (1, 2)}, envs=3, steps=2,
+                        repeats=1, workers=1, presets=("cpu",), progress=False)
+    sw = r["sweep"]
+    rows = {(x["sampler"], x["steps"]): x for x in sw["rows"]}
+    assert set(rows) == {("ddim", 50), ("dpm++", 1), ("dpm++", 2)}
+    base = rows[("ddim", 50)]
+    assert base["diff_vs_baseline"] == 0 and base["within_one_se"] and base["n"] == 3
+    assert sw["baseline"]["se"] > 0 and sw["s_star"]["ddim"] == 50
+    # the statistics are those of the suites' own tables
+    res = pq.read_table(tmp_path / "dpm++-2" / "uniform" / "results.parquet").to_pandas()
+    assert np.isclose(rows[("dpm++", 2)]["mean"], res.final_cost.mean())
+    assert set(res.sampler) == {"dpm++"} and set(res.sampling_steps) == {2}
+    within = [s for s in (1, 2) if rows[("dpm++", s)]["within_one_se"]]
+    assert sw["s_star"]["dpm++"] == (min(within) if within else None)
+    # the baseline run also holds the centralized-masked pass
+    base_res = pq.read_table(tmp_path / "ddim-50" / "uniform" / "results.parquet").to_pandas()
+    assert set(base_res.controller) == {"madp", "madp_central"}
+    assert (tmp_path / "cost_vs_steps.png").stat().st_size > 5000
+    lat = {(x["mode"], x["sampler"], x["num_steps"]) for x in r["latency"]}
+    assert ("decentralized", "ddim", 50) in lat and ("centralized", "ddim", 50) in lat
+    assert r["best"]["sampler"] in ("ddim", "dpm++")
+    # a second call only reads the finished suites
+    stamp = (tmp_path / "dpm++-2" / "uniform" / "results.parquet").stat().st_mtime_ns
+    again = bench_infer_all(str(checkpoints / "madp.safetensors"), tmp_path, {"dpm++": (2,)}, envs=3, steps=2,
+                            repeats=1, workers=1, presets=(), progress=False)
+    assert again["sweep"]["rows"][0]["mean"] == sw["rows"][0]["mean"]
+    assert json.loads((tmp_path / "dpm++-2" / "uniform" / "config.json").read_text())["sampler"] == "dpm++"
+    assert stamp <= (tmp_path / "dpm++-2" / "uniform" / "results.parquet").stat().st_mtime_ns
+
+
+def test_bench_infer_cli_bad_grid_is_one_line(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "madp.cli", "bench", "infer", "--grid", "euler:3",
+                        "--sweep-out", str(tmp_path)], capture_output=True, text=True)
+    assert r.returncode == 2 and "--grid" in r.stderr and len(r.stderr.strip().splitlines()) == 1
