@@ -184,6 +184,7 @@ def train(
     max_steps_per_epoch: Optional[int] = typer.Option(None, help="Cap the steps of an epoch (0: whole split)."),
     checkpoint_every: Optional[int] = typer.Option(None, help="Steps between 'latest' checkpoints."),
     threads: Optional[int] = typer.Option(None, min=1, help="torch intra-op threads (default: torch's choice)."),
+    augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
@@ -197,7 +198,7 @@ def train(
     cfg = resolve(model, preset, data=str(data), out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
-                  stop_after_steps=stop_after_steps)
+                  stop_after_steps=stop_after_steps, augment=augment)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "

@@ -41,6 +41,7 @@ class TrainConfig:
     log_every: int = 10
     max_steps_per_epoch: int = 0  # 0: the whole split
     stop_after_steps: int = 0  # stop (after checkpointing) once this many steps are done; 0: never
+    augment: str = "none"  # none | d4 (training samples only; see madp.training.augment)
 
     def __post_init__(self) -> None:
         if self.model not in ("madp", "lpac"):
@@ -52,6 +53,8 @@ class TrainConfig:
                 raise ValueError(f"--{name.replace('_', '-')}: expected a positive integer, got {getattr(self, name)}")
         if self.lr_schedule not in ("constant", "cosine"):
             raise ValueError(f"lr_schedule: expected constant or cosine, got {self.lr_schedule!r}")
+        if self.augment not in ("none", "d4"):
+            raise ValueError(f"--augment: expected none or d4, got {self.augment!r}")
         if not self.lr > 0:
             raise ValueError(f"--lr: expected a positive learning rate, got {self.lr}")
 

@@ -29,6 +29,8 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 from madp.data_schema import Manifest, iter_shard
 
+from .augment import AUGMENTATIONS, D4_SIZE, transform_sample
+
 
 @dataclass(frozen=True)
 class StreamPosition:
@@ -48,12 +50,15 @@ class ShardStream(IterableDataset):
     """Samples of one split as dicts of tensors: ``obs [N, 4, 32, 32]`` float32, ``pos_m [N, 2]``,
     ``actions [N, 2]`` (m/s, unnormalised), and the sample's ``episode_id`` and ``step``.
 
+    ``augment="d4"``: each sample is replaced by one of its 8 images under the world's rotations
+    and reflections (:mod:`madp.training.augment`), drawn per sample from the stream's seed.
+
     ``batch_size`` only rounds each stream's count down to whole batches (so every DataLoader
     worker hands out whole batches and every rank the same number).
     """
 
     def __init__(self, root: str | Path, manifest: Manifest, split: str, seed: int, batch_size: int = 1,
-                 buffer_size: int = 1024, rank: int = 0, world_size: int = 1):
+                 buffer_size: int = 1024, rank: int = 0, world_size: int = 1, augment: str = "none"):
         self.root = Path(root)
         self.format = manifest.format
         shards = manifest.splits[split].shards
@@ -63,6 +68,10 @@ class ShardStream(IterableDataset):
         self.counts = [s.num_samples for s in shards]
         self.seed, self.batch_size, self.buffer_size = seed, batch_size, buffer_size
         self.rank, self.world_size = rank, world_size
+        if augment not in AUGMENTATIONS:
+            raise ValueError(f"--augment: expected one of {list(AUGMENTATIONS)}, got {augment!r}")
+        self.augment = augment
+        self.world_size_m = float(manifest.params.get("params", {}).get("world_size", 1024.0))
         self.position = StreamPosition(0, 0)
 
     def set_position(self, position: StreamPosition) -> None:
@@ -81,6 +90,10 @@ class ShardStream(IterableDataset):
         streams, per = stream_plan(self.counts, self.seed, epoch, self.world_size * workers)
         per -= per % self.batch_size
         rng = np.random.default_rng([self.seed, epoch, stream])
+        # The D4 element of the k-th sample of this stream's epoch: its own stream of draws, one per
+        # sample including skipped ones, so a resumed epoch transforms exactly as an unbroken one.
+        aug = np.random.default_rng([self.seed, epoch, stream, 0xD4]).integers(0, D4_SIZE, per) \
+            if self.augment == "d4" else None
         emitted = 0
         buffer: list[tuple] = []
         for sample in self._samples(streams[stream]):
@@ -92,14 +105,21 @@ class ShardStream(IterableDataset):
             if emitted >= per:
                 return
             if emitted >= skip:
-                yield _to_tensors(out)
+                yield self._emit(out, aug, emitted)
             emitted += 1
         while buffer and emitted < per:
             j = int(rng.integers(len(buffer)))
             out = buffer.pop(j)
             if emitted >= skip:
-                yield _to_tensors(out)
+                yield self._emit(out, aug, emitted)
             emitted += 1
+
+    def _emit(self, sample: tuple, aug: np.ndarray | None, k: int) -> dict:
+        d = _to_tensors(sample)
+        if aug is not None and aug[k]:
+            d["obs"], d["pos_m"], d["actions"] = transform_sample(d["obs"], d["pos_m"], d["actions"], int(aug[k]),
+                                                                  self.world_size_m)
+        return d
 
     def _samples(self, shard_ids: list[int]) -> Iterator[tuple]:
         for s in shard_ids:

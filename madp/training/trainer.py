@@ -104,7 +104,7 @@ class Trainer:
             self.model = torch.nn.parallel.DistributedDataParallel(
                 self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
         self.train_data = ShardStream(cfg.data, self.manifest, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
-                                      self.rank, self.world)
+                                      self.rank, self.world, augment=cfg.augment)
         self.step, self.epoch, self.batches_done = 0, 0, 0
         self.best_val, self.bad_epochs = math.inf, 0
         self.seen_ids: set = set()  # (episode, step) of trained samples, for the DDP check

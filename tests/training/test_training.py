@@ -51,6 +51,31 @@ def test_streams_split_data_without_repeats(dataset):
     assert ids(s) == epoch1[12:]  # resume mid-epoch
 
 
+def test_d4_augmented_stream_is_an_image_of_the_plain_one_and_resumes_exactly(dataset):
+    """--augment d4: the k-th sample is one of the 8 images of the k-th plain sample (same order,
+    same world size as the dataset's 256 m), about 7/8 of them changed, and a resumed epoch draws
+    the same transforms (fails if skipped samples did not consume their draws)."""
+    from madp.training.augment import transform_sample
+
+    m = open_dataset(dataset)
+    plain = list(ShardStream(dataset, m, "train", seed=5, batch_size=4, buffer_size=8))
+    aug_stream = ShardStream(dataset, m, "train", seed=5, batch_size=4, buffer_size=8, augment="d4")
+    aug = list(aug_stream)
+    assert aug_stream.world_size_m == 256.0 and len(aug) == len(plain)
+    changed = 0
+    for p, a in zip(plain, aug):
+        images = [transform_sample(p["obs"], p["pos_m"], p["actions"], g, 256.0) for g in range(8)]
+        match = [g for g, (o, x, u) in enumerate(images)
+                 if torch.allclose(o, a["obs"]) and torch.allclose(x, a["pos_m"]) and torch.allclose(u, a["actions"])]
+        assert match, "an augmented sample is no D4 image of the plain one"
+        changed += match[0] != 0
+    assert 0.6 * len(aug) < changed < len(aug)
+    aug_stream.set_position(StreamPosition(0, 12))
+    assert all(torch.equal(x["obs"], y["obs"]) for x, y in zip(aug_stream, aug[12:]))
+    with pytest.raises(ValueError, match="--augment"):
+        ShardStream(dataset, m, "train", seed=5, augment="c4")
+
+
 def losses(run: Path):
     lines = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
     return [(d["step"], d["loss"]) for d in lines if "loss" in d], [d["val_loss"] for d in lines if "val_loss" in d]

@@ -1,0 +1,64 @@
+"""Symmetry augmentation: the square world's 8 rotations and reflections (the dihedral group D4).
+
+The coverage problem is equivariant under every map ``p -> A (p - c) + c`` of the world onto itself,
+``c`` the world's centre and ``A`` a signed permutation matrix: the importance map, the sensor and
+local-map windows, the boundary, the Voronoi cells and so the expert's actions all transform along.
+(The library's half-open windows ``c-128 .. c+127`` around the rounded cell c map onto each other
+exactly: a reflection sends cell j to ``W-1-j`` and the rounded position c to ``W-c``.) A sample
+``(O [N, 4, 32, 32], X [N, 2], U [N, 2])`` therefore has 8 equally valid images:
+
+* positions ``X' = A (X - c) + c`` and actions ``U' = A U``;
+* every channel of O is an image over the robot's local window indexed ``[x, y]``: it is moved as
+  the window is (transpose for the axis swap, flip for a reflected axis);
+* the neighbour channels hold the offset vector ``r / r_c`` (channels 1, 2 = x, y), so at every
+  pixel they are also multiplied by A: swapped with the axes, negated with a reflected axis.
+
+An element is ``g`` in 0..7, bits ``(swap, flip_x, flip_y)``: ``A = F S`` with S the axis swap
+(if ``g & 1``) applied first, then F negating x (``g & 2``) and y (``g & 4``). ``g = 0`` is the
+identity. Rounding of positions to cells can differ at exact ties only (measure zero).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+__all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "AUGMENTATIONS"]
+
+D4_SIZE = 8
+AUGMENTATIONS = ("none", "d4")
+
+
+def d4_matrix(g: int) -> np.ndarray:
+    """``A [2, 2]`` of element g (module docstring)."""
+    a = np.array([[0.0, 1.0], [1.0, 0.0]]) if g & 1 else np.eye(2)
+    return np.diag([-1.0 if g & 2 else 1.0, -1.0 if g & 4 else 1.0]) @ a
+
+
+def _vectors(v: Tensor, g: int) -> Tensor:
+    """``A v`` for ``v [..., 2]``."""
+    if g & 1:
+        v = v.flip(-1)
+    sign = torch.tensor([-1.0 if g & 2 else 1.0, -1.0 if g & 4 else 1.0], dtype=v.dtype, device=v.device)
+    return v * sign
+
+
+def transform_sample(obs: Tensor, pos_m: Tensor, actions: Tensor, g: int, world_size: float = 1024.0
+                     ) -> tuple[Tensor, Tensor, Tensor]:
+    """Element g of D4 applied to ``obs [..., N, 4, S, S]`` (channels local, comm_x, comm_y, boundary),
+    ``pos_m [..., N, 2]`` (m) and ``actions [..., N, 2]`` (m/s). Returns new tensors."""
+    if not 0 <= g < D4_SIZE:
+        raise ValueError(f"D4 element must be in 0..7, got {g}")
+    if g == 0:
+        return obs, pos_m, actions
+    img = obs.transpose(-1, -2) if g & 1 else obs
+    dims = [d for d, bit in ((-2, 2), (-1, 4)) if g & bit]
+    if dims:
+        img = img.flip(dims)
+    comm = img[..., 1:3, :, :].movedim(-3, -1)  # [..., S, S, 2] offset vectors per pixel
+    comm = _vectors(comm, g).movedim(-1, -3)
+    img = torch.cat([img[..., :1, :, :], comm, img[..., 3:, :, :]], dim=-3)
+    centre = world_size / 2.0
+    pos = _vectors(pos_m - centre, g) + centre
+    return img.contiguous(), pos, _vectors(actions, g)
