@@ -395,6 +395,9 @@ def bench_infer_cmd(
         b = sw["baseline"]
         typer.echo(f"decentralized MADP on uniform ({sw['envs']} envs, {sw['steps']} steps): mean J/J0 ± SE; "
                    f"DDIM-50 {b['mean']:.4f} ± {b['se']:.4f}")
+        if not b["se_at_most_0.02"]:
+            typer.echo(f"note: DDIM-50's SE {b['se']:.3f} > 0.02; about {b['envs_for_se_0.02']} environments would reach it "
+                       f"(--envs)")
         typer.echo(f"{'sampler':<8}{'S':>4}{'mean':>9}{'SE':>8}{'diff vs DDIM-50':>22}{'within 1 SE':>13}{'eval ms/env-step':>18}")
         for x in sw["rows"]:
             typer.echo(f"{x['sampler']:<8}{x['steps']:>4}{x['mean']:>9.4f}{x['se']:>8.4f}"

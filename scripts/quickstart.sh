@@ -10,7 +10,7 @@ rm -rf runs/quickstart-madp runs/quickstart-lpac
 .venv/bin/madp datagen --n 2000 --out data/quickstart --overwrite
 .venv/bin/madp train --model madp --data data/quickstart --out runs/quickstart-madp --epochs 1 --max-steps-per-epoch 30
 .venv/bin/madp train --model lpac --data data/quickstart --out runs/quickstart-lpac --epochs 1 --max-steps-per-epoch 30
-.venv/bin/madp eval --suite uniform --num-envs 2 --steps 100 --sampling-steps 10 --out runs/quickstart-eval --overwrite \
+.venv/bin/madp eval --suite uniform --num-envs 2 --steps 100 --out runs/quickstart-eval --overwrite \
   --controllers clairvoyant,dcvt,lpac,madp \
   --lpac runs/quickstart-lpac/checkpoints/latest/policy.safetensors \
   --madp runs/quickstart-madp/checkpoints/latest/policy.safetensors

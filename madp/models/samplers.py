@@ -45,7 +45,7 @@ __all__ = ["SAMPLERS", "DEFAULT_SAMPLER", "DEFAULT_SAMPLING_STEPS", "DDIMSampler
 SAMPLERS = ("ddim", "dpm++")
 #: The evaluation default: the (sampler, S) measured by ``madp bench infer`` (README "Fast sampling").
 DEFAULT_SAMPLER = "dpm++"
-DEFAULT_SAMPLING_STEPS = 10
+DEFAULT_SAMPLING_STEPS = 3
 
 
 def check_sampler(name: str, num_steps: int, eta: float) -> None:
