@@ -377,7 +377,7 @@ def bench_infer_cmd(
     madp: Optional[Path] = typer.Option(None, help="Trained MADP checkpoint for the closed-loop sweep (default: shipped)."),
     envs: int = typer.Option(50, min=2, help="uniform-suite environments per sweep setting."),
     steps: int = typer.Option(600, min=1, help="Control steps per environment in the sweep."),
-    grid: str = typer.Option("dpm++:5,10,20;ddim:10,20,50", help="Sweep settings 'sampler:S,...;...' (DDIM-50 is always run)."),
+    grid: Optional[str] = typer.Option(None, help="Sweep settings 'sampler:S,...;...' (default dpm++:3,5,10,20;ddim:10,20,50; DDIM-50 is always run)."),
     sweep_out: Path = typer.Option(Path("runs/bench-infer"), help="Resumable sweep suites and the plot go here."),
     workers: int = typer.Option(0, min=0, help="Worker processes of the sweep (0: all cores)."),
     repeats: int = typer.Option(5, min=1, help="Timed calls per latency median."),
@@ -386,7 +386,7 @@ def bench_infer_cmd(
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
     from madp.eval.bench import bench_infer_all, parse_grid
 
-    r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid), envs=envs, steps=steps,
+    r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
                         repeats=repeats, workers=workers)
     sw = r["sweep"]
     if sw is None:

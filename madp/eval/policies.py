@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler, make_sampler
+from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 from madp.sim import CoverageEnv
 
 SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
@@ -94,7 +94,7 @@ class MADPPolicy:
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(num_steps), float(eta)
         self.sampler, self.fixed_noise = sampler, bool(fixed_noise)
         self._fixed: dict[int, torch.Tensor] = {}
-        self.stochastic = make_sampler(sampler, model.schedule, num_steps, eta).stochastic
+        self.stochastic = sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
         self.device = torch.device(device)
         self.name = "madp" if mode == "decentralized" else "madp_central"
         self.reset(seed)

@@ -245,7 +245,8 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     envs = suite_envs(suite, cfg.num_envs, cfg.cities)
     suite_dir = Path(cfg.out) / suite
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
-                "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise, "record": cfg.record, "env_keys": [e.key for e in envs],
+                "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
+                "record": cfg.record, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs]}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
@@ -311,6 +312,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
                                "sampler", "sampling_steps", "fixed_noise")}
+    sampling = {c: sampling_settings(cfg, c) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
             d = np.load(suite_dir / "jobs" / f"{e.key}-{c}.npz")
@@ -325,9 +327,8 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        num_robots=int(d["num_robots"]), num_features=int(d["num_features"]),
                        sigma_lo=e.params.sigma_range_m[0], sigma_hi=e.params.sigma_range_m[1],
                        city=e.group if e.city_file else "", launch=e.launch,
-                       sampler=sampling_settings(cfg, c).get("sampler", ""),
-                       sampling_steps=sampling_settings(cfg, c).get("sampling_steps", 0),
-                       fixed_noise=sampling_settings(cfg, c).get("fixed_noise", False))
+                       sampler=sampling[c].get("sampler", ""), sampling_steps=sampling[c].get("sampling_steps", 0),
+                       fixed_noise=sampling[c].get("fixed_noise", False))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),

@@ -91,7 +91,8 @@ class MADP(ActionStatsMixin):
       action; all neighbourhoods run packed side by side (identical ones computed once).
     """
 
-    #: Row length (tokens) of the packed layout of :meth:`sample_decentralized` (measured: ``madp bench infer``).
+    #: Row length (tokens) of the packed layout of :meth:`sample_decentralized`: 16, 24, 32, 48 and 64 were
+    #: timed (cpu and paper presets, 1 and 8 swarms); 32 was fastest in each (README, Fast sampling).
     decentralized_row_tokens: int = 32
 
     def __init__(self, config: MADPConfig | None = None):
