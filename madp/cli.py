@@ -100,14 +100,29 @@ def datagen(
     samples_per_shard: int = typer.Option(512, min=1, help="Samples per shard (the last of a split holds the rest)."),
     shards: Optional[str] = typer.Option(None, help="Run only shard tasks I:J of the plan (merge parts later)."),
     overwrite: bool = typer.Option(False, help="Replace a directory made with other parameters."),
+    policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
+    beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
+    max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
 ) -> None:
-    """Generate (U0, X, O) samples from clairvoyant-CVT rollouts as MCAP or Parquet shards."""
+    """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
     from madp.datagen import DatagenConfig, run_datagen
     from madp.sim import SimParams
 
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
-    cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params)
+    learner: dict = {}
+    if policy is not None:
+        from madp.data_schema.manifest import sha256_file
+        from madp.training.checkpoint import load_policy
+
+        _, meta = load_policy(policy)
+        learner = {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"],
+                   "beta": beta,
+                   "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in ("root", "num_samples", "created_by", "more")}}
+    elif beta:
+        raise ValueError("--beta: only meaningful with --policy")
+    cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
+                        policy=learner, max_steps=max_steps or (600 if policy is not None else 2100))
     run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite)
 
 
@@ -171,7 +186,8 @@ def dataset_merge_cmd(parts: List[Path] = typer.Argument(..., help="Part directo
 @app.command()
 def train(
     model: str = typer.Option("madp", help="madp | lpac"),
-    data: Path = typer.Option(Path("data"), help="Dataset directory (from madp datagen)."),
+    data: List[Path] = typer.Option([Path("data")], help="Dataset directory (from madp datagen); repeat to train on several (DAgger rounds): the first one's action statistics and val split are used."),
+    data_weights: Optional[str] = typer.Option(None, help="Comma-separated weight per --data (default all 1): each dataset's shards per epoch x weight."),
     preset: str = typer.Option("cpu", help="paper (the paper's sizes) | cpu (trains on 2 cores in ~2 h)"),
     epochs: Optional[int] = typer.Option(None, help="Override the preset's epochs."),
     batch_size: Optional[int] = typer.Option(None, help="Override the preset's batch size (per rank)."),
@@ -185,6 +201,7 @@ def train(
     checkpoint_every: Optional[int] = typer.Option(None, help="Steps between 'latest' checkpoints."),
     threads: Optional[int] = typer.Option(None, min=1, help="torch intra-op threads (default: torch's choice)."),
     augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
+    edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
@@ -195,10 +212,15 @@ def train(
 
         torch.set_num_threads(threads)
 
-    cfg = resolve(model, preset, data=str(data), out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
+    try:
+        weights = tuple(float(w) for w in data_weights.split(",")) if data_weights else None
+    except ValueError:
+        raise ValueError(f"--data-weights: expected comma-separated numbers, got {data_weights!r}") from None
+    cfg = resolve(model, preset, data=str(data[0]), more_data=tuple(str(d) for d in data[1:]), data_weights=weights,
+                  out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
-                  stop_after_steps=stop_after_steps, augment=augment)
+                  stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "

@@ -36,6 +36,13 @@ class DatagenConfig:
     record_every: int = 5  # record every 5th simulation step (SPEC §3)
     max_steps: int = 2100  # an episode that has not converged by then ends
     params: SimParams = field(default_factory=SimParams)
+    policy: dict = field(default_factory=dict)
+    """Empty: the expert drives (the default). Otherwise the learned policy that drives, for expert
+    relabelling (DAgger): ``{"path", "sha256", "kind", "beta", "parent"}`` — the checkpoint, its
+    sha256, ``madp`` (decentralized, the default sampler) or ``lpac``, the probability ``beta`` that
+    a step executes the expert's action instead, and the dataset the policy was trained on (from the
+    checkpoint's metadata). Episodes then run exactly ``max_steps`` steps (the expert's labels never
+    end them), so late-episode states are recorded at the rate a rollout of that length visits them."""
 
     def __post_init__(self) -> None:
         if self.num_samples < 1:
@@ -46,10 +53,14 @@ class DatagenConfig:
             raise ValueError(f"--seed: expected an integer in [0, 2^32), got {self.seed}")
         if self.samples_per_shard < 1 or self.record_every < 1 or self.max_steps < 1:
             raise ValueError("samples_per_shard, record_every and max_steps must be positive")
+        if self.policy and not 0.0 <= float(self.policy.get("beta", -1)) <= 1.0:
+            raise ValueError(f"--beta: expected a probability in [0, 1], got {self.policy.get('beta')}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["params"] = self.params.to_dict()
+        if not self.policy:  # expert datasets keep the plan.json of before relabelling existed
+            del d["policy"]
         return d
 
     @classmethod
@@ -72,6 +83,10 @@ class DatagenConfig:
             parts.append(f"--world-size {p.world_size}")
         if self.samples_per_shard != 512:
             parts.append(f"--samples-per-shard {self.samples_per_shard}")
+        if self.policy:
+            parts.append(f"--policy {self.policy['path']} --beta {self.policy['beta']:g} --max-steps {self.max_steps}")
+        elif self.max_steps != 2100:
+            parts.append(f"--max-steps {self.max_steps}")
         return " ".join(parts)
 
 

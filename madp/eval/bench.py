@@ -27,7 +27,7 @@ import numpy as np
 
 from madp.models.bench import bench_infer
 
-from .policies import load, shipped_checkpoint
+from madp.policies import load, shipped_checkpoint
 
 PAPER_LATENCY_S = 0.36
 #: Default sweep: {sampler: S values}; DDIM-50 (the paper's sampler) is the baseline.

@@ -61,7 +61,7 @@ _models: dict = {}
 
 
 def _load_model(kind: str, path: str):
-    from .policies import load
+    from madp.policies import load
 
     key = (kind, path)
     if key not in _models:
@@ -74,7 +74,7 @@ def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
         return ClairvoyantCVT()
     if name == "dcvt":
         return DecentralizedCVT()
-    from .policies import LPACPolicy, MADPPolicy
+    from madp.policies import LPACPolicy, MADPPolicy
 
     if name == "lpac":
         return LPACPolicy(_load_model("lpac", cfg.lpac))
@@ -148,7 +148,7 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
     Each environment keeps its own sampling noise (MADP: a generator seeded as in :func:`run_job`),
     so a batch differs from lone rollouts only by float rounding. ``step_s`` is the batch's wall
     time per control step divided by the batch size (the amortised cost per environment)."""
-    from .policies import noise_generator
+    from madp.policies import noise_generator
 
     envs = [CoverageEnv(s.scenario()) for s in specs]
     if len({e.num_robots for e in envs}) != 1:
@@ -219,7 +219,7 @@ def _worker(args):
 
 def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit: bool) -> tuple[EvalConfig, tuple[str, ...]]:
     """Resolve checkpoints; drop learned controllers without one unless they were asked for."""
-    from .policies import load, shipped_checkpoint
+    from madp.policies import load, shipped_checkpoint
 
     unknown = [c for c in requested if c not in ORDER]
     if unknown:

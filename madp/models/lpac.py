@@ -92,6 +92,7 @@ class LPAC(ActionStatsMixin):
         self.mlp = MLP([cfg.gnn_hidden, *cfg.mlp_hidden])
         self.out = nn.Linear(cfg.mlp_hidden[-1], cfg.action_dim)
         self._init_action_stats(cfg.action_dim)
+        self._fired: list[Tensor] | None = None  # set by units_fired()
 
     @property
     def dtype(self) -> torch.dtype:
@@ -119,10 +120,24 @@ class LPAC(ActionStatsMixin):
             warnings.filterwarnings("ignore", message="Sparse invariant checks are implicitly disabled")
             for conv in self.gnn:
                 h = torch.relu(conv(h, adj_t))
+                if self._fired is not None:
+                    self._fired.append((h > 0).any(0))
         u = self.out(self.mlp(h))
         out = u.new_zeros(b, n, cfg.action_dim)
         out[valid] = u
         return out
+
+    @torch.no_grad()
+    def units_fired(self, obs: Tensor, pos_m: Tensor, valid: Tensor | None = None) -> Tensor:
+        """``[gnn_layers, gnn_hidden]`` bool: which ReLU units of each graph layer are positive for at
+        least one robot of the batch. A unit that fires for no robot of many real swarms is dead: it
+        passes no gradient, and (with coupled L2 decay) its weights decay to zero."""
+        self._fired = []
+        try:
+            self(obs, pos_m, valid)
+            return torch.stack(self._fired)
+        finally:
+            self._fired = None
 
     def loss(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None) -> Tensor:
         """MSE on normalised actions over valid robots and action dims."""

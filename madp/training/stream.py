@@ -1,8 +1,11 @@
 """Streaming the shards of one split into training, never holding the dataset in memory.
 
-Order of one epoch, a pure function of (seed, epoch) and the manifest:
+Order of one epoch, a pure function of (seed, epoch) and the manifests:
 
-1. the split's shards are permuted (``default_rng([seed, epoch])``);
+0. with several datasets (DAgger rounds), the epoch's shard list holds each dataset's shards
+   ``weight`` times: ``floor(w)`` full copies plus a draw of ``round(frac(w) · shards)`` of them
+   (``default_rng([seed, epoch, 0xDA7A, d])``); one dataset of weight 1 is just its shards;
+1. the epoch's shards are permuted (``default_rng([seed, epoch])``);
 2. shard j of the permutation goes to stream ``j % S``, where the S = world_size × num_workers
    streams are the (torch.distributed rank, DataLoader worker) pairs — no sample reaches two
    streams;
@@ -38,10 +41,28 @@ class StreamPosition:
     samples_per_stream: int  # already yielded by each stream in this epoch
 
 
-def stream_plan(counts: list[int], seed: int, epoch: int, num_streams: int) -> tuple[list[list[int]], int]:
-    """(shard indices per stream, samples per stream) for one epoch."""
-    order = np.random.default_rng([seed, epoch]).permutation(len(counts))
-    streams = [[int(s) for s in order[i::num_streams]] for i in range(num_streams)]
+def epoch_shards(groups: list[list[int]], weights: list[float], seed: int, epoch: int) -> list[int]:
+    """The shard indices of one epoch: dataset ``d`` (its shards ``groups[d]``) ``weights[d]`` times."""
+    out: list[int] = []
+    for d, (shards, w) in enumerate(zip(groups, weights)):
+        whole, frac = divmod(float(w), 1.0)
+        out += shards * int(whole)
+        extra = int(round(frac * len(shards)))
+        if extra:
+            pick = np.random.default_rng([seed, epoch, 0xDA7A, d]).choice(len(shards), extra, replace=False)
+            out += [shards[i] for i in sorted(pick)]
+    return out
+
+
+def stream_plan(counts: list[int], seed: int, epoch: int, num_streams: int,
+                shards: list[int] | None = None) -> tuple[list[list[int]], int]:
+    """(shard indices per stream, samples per stream) for one epoch over ``shards`` (default: all)."""
+    shards = list(range(len(counts))) if shards is None else shards
+    if len(shards) < num_streams:
+        raise ValueError(f"{len(shards)} shards cannot feed {num_streams} streams (ranks x loader workers); "
+                         "use fewer --workers or ranks")
+    order = np.random.default_rng([seed, epoch]).permutation(len(shards))
+    streams = [[shards[int(s)] for s in order[i::num_streams]] for i in range(num_streams)]
     per_stream = min(sum(counts[s] for s in st) for st in streams)
     return streams, per_stream
 
@@ -57,15 +78,25 @@ class ShardStream(IterableDataset):
     worker hands out whole batches and every rank the same number).
     """
 
-    def __init__(self, root: str | Path, manifest: Manifest, split: str, seed: int, batch_size: int = 1,
-                 buffer_size: int = 1024, rank: int = 0, world_size: int = 1, augment: str = "none"):
-        self.root = Path(root)
-        self.format = manifest.format
-        shards = manifest.splits[split].shards
-        if not shards:
-            raise ValueError(f"{self.root}: split '{split}' has no shards")
-        self.paths = [str(self.root / s.file) for s in shards]
-        self.counts = [s.num_samples for s in shards]
+    def __init__(self, root: str | Path | list, manifest: Manifest | list, split: str, seed: int, batch_size: int = 1,
+                 buffer_size: int = 1024, rank: int = 0, world_size: int = 1, augment: str = "none",
+                 weights: list[float] | None = None):
+        roots = [Path(r) for r in root] if isinstance(root, (list, tuple)) else [Path(root)]
+        manifests = list(manifest) if isinstance(manifest, (list, tuple)) else [manifest]
+        self.weights = [1.0] * len(roots) if not weights else [float(w) for w in weights]
+        if not len(roots) == len(manifests) == len(self.weights):
+            raise ValueError("one manifest and one weight per dataset root")
+        self.root = roots[0]
+        self.paths, self.counts, self.formats, self.groups = [], [], [], []
+        for r, m in zip(roots, manifests):
+            shards = m.splits[split].shards
+            if not shards:
+                raise ValueError(f"{r}: split '{split}' has no shards")
+            self.groups.append(list(range(len(self.paths), len(self.paths) + len(shards))))
+            self.paths += [str(r / s.file) for s in shards]
+            self.counts += [s.num_samples for s in shards]
+            self.formats += [m.format] * len(shards)
+        manifest = manifests[0]
         self.seed, self.batch_size, self.buffer_size = seed, batch_size, buffer_size
         self.rank, self.world_size = rank, world_size
         if augment not in AUGMENTATIONS:
@@ -78,8 +109,12 @@ class ShardStream(IterableDataset):
         """Start the next iteration at ``position`` (set before creating the DataLoader iterator)."""
         self.position = position
 
+    def _plan(self, epoch: int, num_streams: int) -> tuple[list[list[int]], int]:
+        shards = epoch_shards(self.groups, self.weights, self.seed, epoch)
+        return stream_plan(self.counts, self.seed, epoch, num_streams, shards)
+
     def samples_per_stream(self, num_workers: int, epoch: int) -> int:
-        _, per = stream_plan(self.counts, self.seed, epoch, self.world_size * max(num_workers, 1))
+        _, per = self._plan(epoch, self.world_size * max(num_workers, 1))
         return per - per % self.batch_size
 
     def __iter__(self) -> Iterator[dict]:
@@ -87,7 +122,7 @@ class ShardStream(IterableDataset):
         workers, worker = (info.num_workers, info.id) if info else (1, 0)
         stream = self.rank * workers + worker
         epoch, skip = self.position.epoch, self.position.samples_per_stream
-        streams, per = stream_plan(self.counts, self.seed, epoch, self.world_size * workers)
+        streams, per = self._plan(epoch, self.world_size * workers)
         per -= per % self.batch_size
         rng = np.random.default_rng([self.seed, epoch, stream])
         # The D4 element of the k-th sample of this stream's epoch: its own stream of draws, one per
@@ -123,7 +158,7 @@ class ShardStream(IterableDataset):
 
     def _samples(self, shard_ids: list[int]) -> Iterator[tuple]:
         for s in shard_ids:
-            for b in iter_shard(self.paths[s], self.format):
+            for b in iter_shard(self.paths[s], self.formats[s]):
                 for i in range(b.num_samples):
                     yield b.observations[i], b.positions[i], b.actions[i], b.episode_id[i], b.step[i]
 

@@ -55,7 +55,7 @@ def setup_distributed() -> tuple[int, int, torch.device]:
 def build_model(cfg: TrainConfig, num_robots: int) -> torch.nn.Module:
     if cfg.model == "madp":
         return MADP(madp_config(cfg.preset))
-    return LPAC(lpac_config(cfg.preset))
+    return LPAC(lpac_config(cfg.preset, edge_weight=cfg.edge_weight))
 
 
 def step_generator(seed: int, step: int, device: torch.device, stream: int = 0) -> torch.Generator:
@@ -84,9 +84,16 @@ class Trainer:
         self.is_main = self.rank == 0
         self.progress = progress and self.is_main
         self.out = Path(cfg.out)
-        self.manifest = open_dataset(cfg.data)
+        self.manifests = [open_dataset(d) for d in cfg.datasets]
+        self.manifest = self.manifests[0]
         if self.manifest.action_stats is None:
             raise ValueError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
+        for d, m in zip(cfg.more_data, self.manifests[1:]):
+            sim, sim0 = m.params.get("params", {}), self.manifest.params.get("params", {})
+            for key in ("num_robots", "world_size"):
+                if sim.get(key) != sim0.get(key):
+                    raise ValueError(f"{d}/manifest.json: {key} = {sim.get(key)}, but {cfg.data} has {sim0.get(key)}; "
+                                     "datasets trained together must share them")
         # Weights that stop receiving gradient decay towards zero (L2 weight decay) and turn
         # subnormal; on CPU every op on them then runs ~10x slower (LPAC-K3 fell from 106 to 14
         # samples/s as 35% of its weights went subnormal). Flushing them to zero costs nothing.
@@ -103,8 +110,8 @@ class Trainer:
         if self.world > 1:
             self.model = torch.nn.parallel.DistributedDataParallel(
                 self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
-        self.train_data = ShardStream(cfg.data, self.manifest, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
-                                      self.rank, self.world, augment=cfg.augment)
+        self.train_data = ShardStream(cfg.datasets, self.manifests, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
+                                      self.rank, self.world, augment=cfg.augment, weights=cfg.weights)
         self.step, self.epoch, self.batches_done = 0, 0, 0
         self.best_val, self.bad_epochs = math.inf, 0
         self.seen_ids: set = set()  # (episode, step) of trained samples, for the DDP check
@@ -124,7 +131,9 @@ class Trainer:
         return {"action_stats": st.to_dict(), "train_config": self.cfg.to_dict(), "step": self.step,
                 "epoch": self.epoch, "val_loss": val_loss, "dataset": {
                     "root": str(self.cfg.data), "num_samples": self.manifest.num_samples,
-                    "created_by": self.manifest.created_by, "params": self.manifest.params},
+                    "created_by": self.manifest.created_by, "params": self.manifest.params,
+                    "more": [{"root": d, "weight": w, "num_samples": m.num_samples, "created_by": m.created_by}
+                             for d, w, m in zip(self.cfg.more_data, self.cfg.weights[1:], self.manifests[1:])]},
                 "code_version": self.manifest.code_version}
 
     def _write_config(self) -> None:
@@ -217,6 +226,26 @@ class Trainer:
         self.raw.train()
         return total / max(n, 1)
 
+    @torch.no_grad()
+    def dead_units(self) -> dict:
+        """LPAC-K3's health on the validation samples: per graph layer, the fraction of ReLU units
+        that fire for no robot (``dead_units``) and of TAGConv weights below 1e-6 (``tiny_weights``)."""
+        stream = ShardStream(self.cfg.data, self.manifest, "val", seed=12345, batch_size=1, buffer_size=1)
+        loader = DataLoader(stream, batch_size=self.cfg.batch_size, num_workers=0)
+        self.raw.eval()
+        fired, n = None, 0
+        for batch in loader:
+            f = self.raw.units_fired(batch["obs"].to(self.device), batch["pos_m"].to(self.device))
+            fired = f if fired is None else fired | f
+            n += batch["obs"].shape[0]
+            if n >= self.cfg.val_samples:
+                break
+        self.raw.train()
+        tiny = [float(torch.cat([p.detach().abs().flatten() for p in conv.parameters() if p.dim() > 1]).lt(1e-6)
+                      .float().mean()) for conv in self.raw.gnn]
+        return {"dead_units": [round(float(x), 4) for x in (~fired).float().mean(1)],
+                "tiny_weights": [round(x, 4) for x in tiny]}
+
     # ---- training
     def _epoch_batches(self, epoch: int) -> int:
         cfg = self.cfg
@@ -231,6 +260,8 @@ class Trainer:
         cfg = self.cfg
         stop_reason = "epochs"
         total_steps = self.planned_steps() if cfg.lr_schedule != "constant" else 0
+        if cfg.model == "lpac" and self.step == 0 and self.is_main:
+            self._log({"step": 0, "epoch": 0, **self.dead_units()})  # the initial health, to compare with
         while self.epoch < cfg.epochs:
             batches = self._epoch_batches(self.epoch)
             # Round-robin over workers: batch b comes from worker b % W, its (b // W)-th batch.
@@ -285,8 +316,9 @@ class Trainer:
             self.bad_epochs = 0 if improved else self.bad_epochs + 1
             self.epoch += 1
             self.batches_done = 0
+            health = self.dead_units() if self.cfg.model == "lpac" and self.is_main else {}
             self._log({"epoch": self.epoch - 1, "step": self.step, "val_loss": val, "best_val_loss": self.best_val,
-                       "improved": improved})
+                       "improved": improved, **health})
             if self.progress:
                 print(f"epoch {self.epoch}: val loss {val:.5f} (best {self.best_val:.5f})")
             if improved:

@@ -170,7 +170,7 @@ def test_plan_batches_learned_controllers_of_equal_swarm_size(tmp_path):
 def test_fixed_noise_makes_the_policy_a_function_of_the_state(checkpoints):
     """--fixed-noise: the same state gives the same action at every step of an episode (a fresh
     draw per step would not); a new episode (reset) draws new noise."""
-    from madp.eval.policies import MADPPolicy, load
+    from madp.policies import MADPPolicy, load
     from madp.sim import CoverageEnv
 
     model, _ = load(checkpoints / "madp.safetensors", "madp")

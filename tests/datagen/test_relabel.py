@@ -1,0 +1,111 @@
+"""madp datagen --policy: expert relabelling of a learned policy's rollouts (DAgger)."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from madp.data_schema import Manifest, iter_shard
+from madp.datagen.plan import scenario_seed
+from madp.policies import shipped_checkpoint
+from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario, SimParams
+
+PARAMS = SimParams(world_size=256, num_robots=4, num_features=4)
+SMALL = ["--num-robots", "4", "--num-features", "4", "--world-size", "256", "--samples-per-shard", "22",
+         "--max-steps", "50", "--seed", "3"]
+
+
+def madp(*args):
+    return subprocess.run([sys.executable, "-m", "madp.cli", *map(str, args)], capture_output=True, text=True)
+
+
+def tree_bytes(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def first_episode(root: Path):
+    m = Manifest.load(root / "manifest.json")
+    b = next(iter_shard(m.shard_paths("train", root)[0]))
+    first = b.episode_id == b.episode_id[0]
+    return m, b, first
+
+
+@pytest.fixture(scope="module")
+def madp_relabelled(tmp_path_factory):
+    root = tmp_path_factory.mktemp("relabel") / "w1"
+    r = madp("datagen", "--n", 44, "--out", root, "--workers", 1, "--policy", shipped_checkpoint("madp"),
+             "--beta", 0.25, *SMALL)
+    assert r.returncode == 0, r.stderr
+    return root
+
+
+def test_relabelled_bytes_do_not_depend_on_workers(madp_relabelled, tmp_path):
+    r = madp("datagen", "--n", 44, "--out", tmp_path / "w2", "--workers", 2, "--policy", shipped_checkpoint("madp"),
+             "--beta", 0.25, *SMALL)
+    assert r.returncode == 0, r.stderr
+    assert tree_bytes(tmp_path / "w2") == tree_bytes(madp_relabelled)
+
+
+def test_manifest_records_policy_beta_and_parent(madp_relabelled):
+    from madp.data_schema.manifest import sha256_file
+
+    m, b, first = first_episode(madp_relabelled)
+    pol = m.params["policy"]
+    assert pol["sha256"] == sha256_file(shipped_checkpoint("madp")) and pol["kind"] == "madp" and pol["beta"] == 0.25
+    assert pol["parent"]["created_by"].startswith("madp datagen --n 100000")  # the data the policy learned from
+    assert "--policy" in m.created_by and "--beta 0.25" in m.created_by
+    # episodes run the whole horizon (t = 0, 5, ..., 50), not until the expert's labels are zero
+    assert list(b.step[first]) == list(range(0, 51, 5))
+
+
+def test_labels_are_the_expert_at_the_states_the_learner_visits(madp_relabelled):
+    """Every label is the clairvoyant action at the recorded positions; with beta = 0.25 the swarm
+    mostly follows MADP, so it leaves the path the expert alone would take."""
+    m, b, first = first_episode(madp_relabelled)
+    scen = Scenario.random(int(b.scenario_seed[0]), PARAMS)
+    assert b.scenario_seed[0] == scenario_seed(3, "train", 0, 0)
+    for k in np.flatnonzero(first):
+        env = CoverageEnv(dataclasses.replace(scen, robots_m=b.positions[k].astype(np.float64)))
+        np.testing.assert_allclose(b.actions[k], ClairvoyantCVT()(env), atol=1e-4)
+    expert_env = CoverageEnv(scen)
+    expert = ClairvoyantCVT()
+    for _ in range(50):
+        expert_env.step(expert(expert_env))
+    assert np.abs(b.positions[first][-1] - expert_env.positions_m).max() > 1.0
+
+
+def test_beta_one_is_the_expert_rollout(tmp_path):
+    """beta = 1: every step executes the expert's action, so the states are the expert's own."""
+    r = madp("datagen", "--n", 44, "--out", tmp_path / "b1", "--workers", 1, "--policy", shipped_checkpoint("lpac"),
+             "--beta", 1, *SMALL)
+    assert r.returncode == 0, r.stderr
+    m, b, first = first_episode(tmp_path / "b1")
+    env = CoverageEnv(Scenario.random(int(b.scenario_seed[0]), PARAMS))
+    expert = ClairvoyantCVT()
+    for t in range(51):
+        u = expert(env)
+        if t % 5 == 0:
+            np.testing.assert_array_equal(b.positions[first][t // 5], env.positions_m.astype(np.float32))
+            np.testing.assert_array_equal(b.actions[first][t // 5], u.astype(np.float32))
+        env.step(u)
+
+
+def test_relabelling_refusals(tmp_path):
+    ckpt = tmp_path / "p.safetensors"
+    ckpt.write_bytes(shipped_checkpoint("lpac").read_bytes())
+    for args, needle in [(["--beta", 1.5, "--policy", ckpt], "--beta"), (["--beta", 0.5], "--beta"),
+                         (["--policy", tmp_path / "none.safetensors"], "none.safetensors")]:
+        r = madp("datagen", "--n", 20, "--out", tmp_path / "x", *args, *SMALL)
+        assert r.returncode == 2 and needle in r.stderr and "Traceback" not in r.stderr, r.stderr
+    # the checkpoint changes between the plan and a resumed run: its sha256 is part of the plan, so the
+    # run is refused (a change while workers run is caught by the workers' own sha256 check)
+    plan = tmp_path / "y"
+    r = madp("datagen", "--n", 20, "--out", plan, "--policy", ckpt, "--shards", "0:1", *SMALL)
+    assert r.returncode == 0, r.stderr
+    ckpt.write_bytes(shipped_checkpoint("madp").read_bytes())
+    r = madp("datagen", "--n", 20, "--out", plan, "--policy", ckpt, *SMALL)
+    assert r.returncode == 2 and "other parameters" in r.stderr, r.stderr
