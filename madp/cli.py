@@ -201,6 +201,7 @@ def train(
     checkpoint_every: Optional[int] = typer.Option(None, help="Steps between 'latest' checkpoints."),
     threads: Optional[int] = typer.Option(None, min=1, help="torch intra-op threads (default: torch's choice)."),
     augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
+    init: Optional[Path] = typer.Option(None, help="Start from this policy.safetensors' weights (same model and preset; fresh optimizer), e.g. the previous DAgger round."),
     edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
@@ -220,7 +221,8 @@ def train(
                   out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
-                  stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight)
+                  stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight,
+                  init=str(init) if init else None)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "

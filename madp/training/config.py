@@ -46,6 +46,7 @@ class TrainConfig:
     max_steps_per_epoch: int = 0  # 0: the whole split
     stop_after_steps: int = 0  # stop (after checkpointing) once this many steps are done; 0: never
     augment: str = "none"  # none | d4 (training samples only; see madp.training.augment)
+    init: str = ""  # start from this policy.safetensors' weights (same model and preset), e.g. for DAgger rounds
     edge_weight: str = "binary"  # LPAC-K3's communication graph: binary (the library's) | gaussian
 
     def __post_init__(self) -> None:

@@ -29,6 +29,7 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader
 
 from madp.data_schema.dataset import open_dataset
+from madp.data_schema.manifest import sha256_file
 from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
 
 from .checkpoint import load_checkpoint_state, save_checkpoint
@@ -84,6 +85,7 @@ class Trainer:
         self.is_main = self.rank == 0
         self.progress = progress and self.is_main
         self.out = Path(cfg.out)
+        self.init_meta: dict = {}
         self.manifests = [open_dataset(d) for d in cfg.datasets]
         self.manifest = self.manifests[0]
         if self.manifest.action_stats is None:
@@ -101,6 +103,8 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.raw = build_model(cfg, self.manifest.num_robots).to(self.device)
         stats = self.manifest.action_stats
+        if cfg.init and not resume:
+            self._init_from(Path(cfg.init))
         self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
                                   torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
         opt_cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
@@ -125,6 +129,17 @@ class Trainer:
             self._write_config()
         self.tb = self._tensorboard() if self.is_main else None
 
+    def _init_from(self, path: Path) -> None:
+        """Warm start: the weights of a policy file of the same model (optimizer and counters fresh)."""
+        from .checkpoint import load_policy
+
+        model, meta = load_policy(path)
+        if meta["kind"] != self.cfg.model or meta["config"] != self.raw.config.to_dict():
+            raise ValueError(f"{path}: --init needs a {self.cfg.model} checkpoint of the {self.cfg.preset} preset "
+                             f"(it is a {meta['kind']} with another config)")
+        self.raw.load_state_dict(model.state_dict())
+        self.init_meta = {"path": str(path), "sha256": sha256_file(path), "step": meta.get("step")}
+
     # ---- bookkeeping
     def _meta(self, val_loss: float | None) -> dict:
         st = self.manifest.action_stats
@@ -134,7 +149,7 @@ class Trainer:
                     "created_by": self.manifest.created_by, "params": self.manifest.params,
                     "more": [{"root": d, "weight": w, "num_samples": m.num_samples, "created_by": m.created_by}
                              for d, w, m in zip(self.cfg.more_data, self.cfg.weights[1:], self.manifests[1:])]},
-                "code_version": self.manifest.code_version}
+                "code_version": self.manifest.code_version, **({"init": self.init_meta} if self.init_meta else {})}
 
     def _write_config(self) -> None:
         d = {"train": self.cfg.to_dict(), "model": self.raw.config.to_dict(),

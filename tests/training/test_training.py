@@ -209,3 +209,19 @@ def test_training_on_several_datasets(dataset, tmp_path):
     assert meta["dataset"]["more"][0]["weight"] == 2 and meta["action_stats"] == m1.action_stats.to_dict()
     with pytest.raises(ValueError, match="--data-weights"):
         resolve("lpac", "cpu", data=str(dataset), more_data=(str(other),), data_weights=(1,))
+
+
+def test_init_warm_starts_from_a_policy_file_and_refuses_another_model(dataset, tmp_path):
+    from madp.training.trainer import Trainer
+
+    first = resolve("lpac", "cpu", data=str(dataset), out=str(tmp_path / "a"), epochs=1, batch_size=4,
+                    max_steps_per_epoch=2, val_samples=8)
+    train(first, progress=False)
+    src = tmp_path / "a" / "checkpoints" / "best" / "policy.safetensors"
+    warm = Trainer(resolve("lpac", "cpu", data=str(dataset), out=str(tmp_path / "b"), init=str(src)), progress=False)
+    ref, _ = load_policy(src)
+    for k, v in ref.state_dict().items():
+        assert torch.equal(warm.raw.state_dict()[k], v), k
+    assert warm.step == 0 and json.loads((tmp_path / "b" / "config.json").read_text())["init"]["path"] == str(src)
+    with pytest.raises(ValueError, match="--init needs a madp checkpoint"):
+        Trainer(resolve("madp", "cpu", data=str(dataset), out=str(tmp_path / "c"), init=str(src)), progress=False)
