@@ -9,6 +9,9 @@ DATA=${DATA:-/work/data100k}
 ROUNDS=${ROUNDS:-2}
 MADP0=${MADP0:-madp/checkpoints/madp-cpu.safetensors}
 LPAC0=${LPAC0:-runs/lpac-r0/checkpoints/best/policy.safetensors}
+# LPAC-K3's round 0 with today's recipe (AdamW, unweighted graph): 6 x 1000 steps, ~21 min on one thread
+[ -f "$LPAC0" ] || .venv/bin/madp train --model lpac --preset cpu --data "$DATA" --out runs/lpac-r0 --threads 1 \
+  --epochs 6 --max-steps-per-epoch 1000
 for model in madp lpac; do
   prev=$([ $model = madp ] && echo "$MADP0" || echo "$LPAC0")
   seed0=$([ $model = madp ] && echo 100 || echo 200)
