@@ -103,8 +103,8 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.raw = build_model(cfg, self.manifest.num_robots).to(self.device)
         stats = self.manifest.action_stats
-        if cfg.init and not resume:
-            self._init_from(Path(cfg.init))
+        if cfg.init:  # on resume the checkpoint holds the weights; the record of the start stays
+            self._init_from(Path(cfg.init), load_weights=not resume)
         self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
                                   torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
         opt_cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
@@ -129,7 +129,7 @@ class Trainer:
             self._write_config()
         self.tb = self._tensorboard() if self.is_main else None
 
-    def _init_from(self, path: Path) -> None:
+    def _init_from(self, path: Path, load_weights: bool = True) -> None:
         """Warm start: the weights of a policy file of the same model (optimizer and counters fresh)."""
         from .checkpoint import load_policy
 
@@ -137,7 +137,8 @@ class Trainer:
         if meta["kind"] != self.cfg.model or meta["config"] != self.raw.config.to_dict():
             raise ValueError(f"{path}: --init needs a {self.cfg.model} checkpoint of the {self.cfg.preset} preset "
                              f"(it is a {meta['kind']} with another config)")
-        self.raw.load_state_dict(model.state_dict())
+        if load_weights:
+            self.raw.load_state_dict(model.state_dict())
         self.init_meta = {"path": str(path), "sha256": sha256_file(path), "step": meta.get("step")}
 
     # ---- bookkeeping
@@ -222,22 +223,28 @@ class Trainer:
         dist.barrier()
 
     # ---- validation
+    def _val_batches(self):
+        """Batches of the first ``val_samples`` of the first dataset's val split, in a fixed order."""
+        stream = ShardStream(self.cfg.data, self.manifest, "val", seed=12345, batch_size=1, buffer_size=1)
+        n = 0
+        for batch in DataLoader(stream, batch_size=self.cfg.batch_size, num_workers=0):
+            yield batch
+            n += batch["obs"].shape[0]
+            if n >= self.cfg.val_samples:
+                return
+
     @torch.no_grad()
     def validate(self) -> float:
         """Mean loss over the first ``val_samples`` of the val split, with fixed noise (EMA weights)."""
-        stream = ShardStream(self.cfg.data, self.manifest, "val", seed=12345, batch_size=1, buffer_size=1)
-        loader = DataLoader(stream, batch_size=self.cfg.batch_size, num_workers=0)
         self.raw.eval()
         ctx = self.ema.average_parameters(self.raw) if self.ema is not None else nullcontext()
         total, n = 0.0, 0
         with ctx:
-            for i, batch in enumerate(loader):
+            for i, batch in enumerate(self._val_batches()):
                 g = step_generator(self.cfg.seed, i, self.device, stream=1)
                 b = batch["obs"].shape[0]
                 total += float(batch_loss(self.raw, self.raw, batch, self.cfg, g, self.device)) * b
                 n += b
-                if n >= self.cfg.val_samples:
-                    break
         self.raw.train()
         return total / max(n, 1)
 
@@ -245,16 +252,11 @@ class Trainer:
     def dead_units(self) -> dict:
         """LPAC-K3's health on the validation samples: per graph layer, the fraction of ReLU units
         that fire for no robot (``dead_units``) and of TAGConv weights below 1e-6 (``tiny_weights``)."""
-        stream = ShardStream(self.cfg.data, self.manifest, "val", seed=12345, batch_size=1, buffer_size=1)
-        loader = DataLoader(stream, batch_size=self.cfg.batch_size, num_workers=0)
         self.raw.eval()
-        fired, n = None, 0
-        for batch in loader:
+        fired = None
+        for batch in self._val_batches():
             f = self.raw.units_fired(batch["obs"].to(self.device), batch["pos_m"].to(self.device))
             fired = f if fired is None else fired | f
-            n += batch["obs"].shape[0]
-            if n >= self.cfg.val_samples:
-                break
         self.raw.train()
         tiny = [float(torch.cat([p.detach().abs().flatten() for p in conv.parameters() if p.dim() > 1]).lt(1e-6)
                       .float().mean()) for conv in self.raw.gnn]
