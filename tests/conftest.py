@@ -1,4 +1,11 @@
-"""Shared test fixtures: where the reference data beside the repository lives."""
+"""Shared test fixtures: where the reference data beside the repository lives.
+
+The reference vectors and city files live outside the repository, in ``../shared`` (or wherever
+``MADP_SHARED`` points). Locally, tests that need them skip when they are absent; in CI (the
+``CI`` environment variable set, as every CI service does) they fail instead, naming the missing
+directory, so a green CI run always includes the reference comparisons. Use the ``vectors_dir`` /
+``cities_dir`` fixtures (or :func:`require_shared`), never a path of your own.
+"""
 
 import os
 
@@ -13,8 +20,33 @@ VECTORS = SHARED / "vectors"
 CITIES = SHARED / "cities"
 
 
+def in_ci() -> bool:
+    """True when the ``CI`` environment variable is set (to anything but empty, 0 or false)."""
+    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def require_shared(path: Path, what: str) -> Path:
+    """``path`` if it is a directory; otherwise skip the test, or fail it when running in CI."""
+    if path.is_dir():
+        return path
+    msg = f"{what} not found: directory {path} is missing (put the shared data at {REPO.parent / 'shared'} or set MADP_SHARED)"
+    if in_ci():
+        pytest.fail(f"{msg}; CI must run the reference tests, not skip them", pytrace=False)
+    pytest.skip(msg)
+
+
+def shared_params(paths: list, placeholder: str) -> list:
+    """Parameters for a test parametrized over shared files: ``paths``, or one placeholder when the
+    directory is missing, so the test is still collected and its fixture can skip or fail (an empty
+    parameter list would always skip, CI or not)."""
+    return list(paths) or [placeholder]
+
+
 @pytest.fixture(scope="session")
 def vectors_dir() -> Path:
-    if not VECTORS.is_dir():
-        pytest.skip(f"reference vectors not found at {VECTORS} (set MADP_SHARED)")
-    return VECTORS
+    return require_shared(VECTORS, "reference vectors")
+
+
+@pytest.fixture(scope="session")
+def cities_dir() -> Path:
+    return require_shared(CITIES, "city files")

@@ -3,16 +3,25 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from madp.data_schema.bench import bench_io, synthetic_episodes
 
 
 def test_bench_io_reports_all_formats(tmp_path):
+    """Every reported figure is what it claims: sizes are the files' sizes per sample, MB/s counts the
+    decoded float16 observations at the measured sample rate, the memmap is the raw array plus its
+    .npy header (fails on a size or rate derived from the wrong quantity)."""
     r = bench_io(tmp_path, num_samples=8, num_robots=4, repeats=1, batch_size=4)
     assert (r["num_samples"], r["num_robots"]) == (8, 4)
-    for fmt in ("mcap", "parquet", "npy_memmap"):
-        assert r[fmt]["read_samples_per_s"] > 0
-        assert r[fmt]["bytes_per_sample"] > 0
+    files = {"mcap": "bench.mcap", "parquet": "bench.parquet", "npy_memmap": "bench_observations.npy"}
+    obs_mb = 4 * 4 * 32 * 32 * 2 / 1e6
+    for fmt, name in files.items():
+        size = (tmp_path / name).stat().st_size
+        assert r[fmt]["bytes"] == size and r[fmt]["bytes_per_sample"] == size / 8
+        assert r[fmt]["read_mb_per_s"] == pytest.approx(r[fmt]["read_samples_per_s"] * obs_mb)
+        assert r[fmt]["read_samples_per_s"] > 0 and r[fmt]["write_s"] > 0
+    assert 0 < r["npy_memmap"]["bytes"] - 8 * 4 * 4 * 32 * 32 * 2 <= 4096  # raw float16 + header
     # compression works on realistic data: both encodings are well below the raw float16 size
     raw = 4 * 4 * 32 * 32 * 2
     assert r["parquet"]["bytes_per_sample"] < 0.5 * raw

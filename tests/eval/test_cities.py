@@ -23,9 +23,12 @@ from madp.eval.cities import (
     unproject_local,
 )
 
-CITIES_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "cities"
-needs_cities = pytest.mark.skipif(not CITIES_DIR.is_dir(), reason=f"{CITIES_DIR} not present")
-CITY_FILES = sorted(CITIES_DIR.glob("*.csv")) if CITIES_DIR.is_dir() else []
+from tests.conftest import CITIES as CITIES_DIR, shared_params
+
+# ../shared/cities or $MADP_SHARED/cities; the cities_dir fixture skips without it (fails in CI).
+needs_cities = pytest.mark.usefixtures("cities_dir")
+CITY_FILES = shared_params(sorted(CITIES_DIR.glob("*.csv")) if CITIES_DIR.is_dir() else [],
+                           CITIES_DIR / "cities-missing.csv")
 
 
 # --------------------------------------------------------------------------------------------------

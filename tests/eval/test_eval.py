@@ -14,8 +14,8 @@ from madp.eval.runner import EvalConfig, available_controllers, plan_jobs, run_b
 from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
 from madp.models import LPAC, MADP, lpac_config, madp_config
 from madp.training.checkpoint import save_policy
-from tests.conftest import CITIES
 from tests.eval.conftest import META
+
 
 def test_suites_are_seeded_apart_from_datasets():
     for suite in ("uniform", "sigma", "launch", "scale"):
@@ -33,10 +33,8 @@ def test_suites_are_seeded_apart_from_datasets():
     assert (s.features[:, 2] >= 5).all() and (s.features[:, 2] <= 10).all()
 
 
-def test_cities_suite_reads_city_files():
-    if not CITIES.is_dir():
-        pytest.skip("../shared/cities not present")
-    envs = suite_envs("cities", 50, CITIES)
+def test_cities_suite_reads_city_files(cities_dir):
+    envs = suite_envs("cities", 50, cities_dir)
     assert len(envs) == 40
     sc = envs[[e.group for e in envs].index("portland_oregon")].scenario()
     assert len(sc.features) == 166 and sc.params.num_robots == 32

@@ -1,3 +1,6 @@
+import math
+
+import numpy as np
 import pytest
 import torch
 
@@ -112,3 +115,89 @@ def test_clip_x0(sched):
 def test_sample_timesteps_range(sched, gen):
     k = sched.sample_timesteps(10000, generator=gen)
     assert k.min() >= 1 and k.max() <= 1000 and k.dtype == torch.long
+
+
+# --- Expectations built without the code under test (issue 17) ------------------------------------
+
+def textbook_abar(k_max=1000, beta_start=1e-4, beta_end=0.02):
+    """``abar[k]`` for k = 0..K from Ho et al. (2020) in numpy: linear betas, abar_0 = 1."""
+    betas = np.linspace(beta_start, beta_end, k_max, dtype=np.float64)
+    return np.concatenate([[1.0], np.cumprod(1.0 - betas)]), np.concatenate([[0.0], betas])
+
+
+@pytest.mark.parametrize("eta", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("steps", [10, 50])
+def test_ddim_oracle_trajectory_stays_on_the_forward_marginals(sched, gen, eta, steps):
+    """With the exact noise of a fixed x0, every DDIM step (not just the last, which maps any x to x0)
+    lands on ``sqrt(abar_prev) x0 + sqrt(1 - abar_prev) e`` with ``e`` tracked from the DDIM paper's
+    eq. 12 (``e' = (sqrt(1 - abar_prev - sigma^2) e + sigma n) / sqrt(1 - abar_prev)``), the schedule
+    and sigma computed here in numpy. Fails at the first step on a wrong coefficient, sign or sigma,
+    and on a wrong timestep subsequence (k_i = round(i K / S))."""
+    abar, _ = textbook_abar()
+    seq = [round(i * 1000 / steps) for i in range(steps, -1, -1)]
+    sched.set_timesteps(steps)
+    assert sched.timesteps.tolist() == seq[:-1]
+    x0 = torch.randn(3, 8, 2, generator=gen, dtype=torch.float64)
+    e = torch.randn(3, 8, 2, generator=gen, dtype=torch.float64)
+    x = math.sqrt(abar[1000]) * x0 + math.sqrt(1 - abar[1000]) * e
+    for k, prev in zip(seq[:-1], seq[1:]):
+        eps = (x - math.sqrt(abar[k]) * x0) / math.sqrt(1 - abar[k])  # the oracle
+        n = torch.randn(x.shape, generator=gen, dtype=torch.float64)
+        x = sched.step(eps, k, x, eta=eta, noise=n)
+        sigma = eta * math.sqrt((1 - abar[prev]) / (1 - abar[k])) * math.sqrt(1 - abar[k] / abar[prev])
+        if prev > 0:
+            e = (math.sqrt(1 - abar[prev] - sigma**2) * e + sigma * n) / math.sqrt(1 - abar[prev])
+        expect = math.sqrt(abar[prev]) * x0 + math.sqrt(1 - abar[prev]) * e
+        assert torch.allclose(x, expect, rtol=0, atol=1e-9), (k, prev)
+    assert torch.allclose(x, x0, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("k", [1000, 501, 2, 1])
+def test_eta_one_consecutive_step_is_ddpm_ancestral_sampling(sched, gen, k):
+    """DDIM with eta = 1 from k to k - 1 is DDPM's Algorithm 2 (Ho et al. 2020):
+    ``x_{k-1} = (x_k - beta_k / sqrt(1 - abar_k) eps) / sqrt(alpha_k) + sqrt(beta_tilde_k) z`` with
+    ``beta_tilde_k = (1 - abar_{k-1}) / (1 - abar_k) beta_k``, written here from the paper, for an
+    arbitrary (not oracle) eps. Fails on a wrong sigma, noise scale or mean coefficient."""
+    abar, betas = textbook_abar()
+    x = torch.randn(4, 6, 2, generator=gen, dtype=torch.float64)
+    eps = torch.randn(4, 6, 2, generator=gen, dtype=torch.float64)
+    z = torch.randn(4, 6, 2, generator=gen, dtype=torch.float64)
+    beta_tilde = (1 - abar[k - 1]) / (1 - abar[k]) * betas[k]
+    expect = (x - betas[k] / math.sqrt(1 - abar[k]) * eps) / math.sqrt(1 - betas[k]) + math.sqrt(beta_tilde) * z
+    got = sched.step(eps, k, x, eta=1.0, prev_k=k - 1, noise=z)
+    assert torch.allclose(got, expect, rtol=1e-10, atol=1e-10)
+
+
+def test_eta_one_skip_step_samples_the_forward_posterior(sched, gen):
+    """Over a skip k -> p (as in S < K sampling), eta = 1 samples q(x_p | x_k, x0_hat) of the forward
+    process restricted to the subsequence: mean ``sqrt(abar_p) b / (1 - abar_k) x0_hat +
+    sqrt(a) (1 - abar_p) / (1 - abar_k) x_k`` and variance ``(1 - abar_p) / (1 - abar_k) b`` with
+    ``a = abar_k / abar_p``, ``b = 1 - a`` (Bishop-style Gaussian conditioning, written here)."""
+    abar, _ = textbook_abar()
+    x = torch.randn(4, 6, 2, generator=gen, dtype=torch.float64)
+    eps = torch.randn(4, 6, 2, generator=gen, dtype=torch.float64)
+    z = torch.randn(4, 6, 2, generator=gen, dtype=torch.float64)
+    for k, p in [(1000, 900), (300, 280), (40, 20)]:
+        a = abar[k] / abar[p]
+        b = 1 - a
+        x0_hat = (x - math.sqrt(1 - abar[k]) * eps) / math.sqrt(abar[k])
+        mean = (math.sqrt(abar[p]) * b / (1 - abar[k])) * x0_hat + (math.sqrt(a) * (1 - abar[p]) / (1 - abar[k])) * x
+        var = (1 - abar[p]) / (1 - abar[k]) * b
+        got = sched.step(eps, k, x, eta=1.0, prev_k=p, noise=z)
+        assert torch.allclose(got, mean + math.sqrt(var) * z, rtol=1e-10, atol=1e-10), (k, p)
+
+
+def test_schedule_and_forward_process_match_diffusers(gen):
+    """Same betas as diffusers' linear schedule (its t = our k - 1) and the same q(x_k | x_0): fails on
+    an off-by-one between k and t, on abar_0 != 1 or a wrong beta range."""
+    from diffusers import DDPMScheduler
+
+    ref = DDPMScheduler(num_train_timesteps=1000, beta_start=1e-4, beta_end=0.02, beta_schedule="linear")
+    ours = DDPMSchedule(1000, 1e-4, 0.02)
+    assert torch.allclose(ours.alphas_cumprod[1:].float(), ref.alphas_cumprod, rtol=1e-5, atol=1e-7)
+    assert torch.allclose(ours.betas[1:].float(), ref.betas, rtol=1e-6)
+    x0 = torch.randn(5, 7, 2, generator=gen)
+    noise = torch.randn(5, 7, 2, generator=gen)
+    k = torch.tensor([1, 2, 250, 999, 1000])
+    got = ours.add_noise(x0, noise, k)
+    assert torch.allclose(got, ref.add_noise(x0, noise, k - 1), rtol=1e-5, atol=1e-5)

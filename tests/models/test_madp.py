@@ -226,7 +226,9 @@ def test_decentralized_equals_each_robot_running_the_model_on_its_own_neighbourh
     tokens its neighbours computed for themselves, runs encoder and sampler on just its
     neighbourhood (mask recomputed among those robots, with the component term) and keeps its own
     action. Overlapping, unequal neighbourhoods, two swarms, padding. Fails if packed
-    neighbourhoods see each other, if an ego reads another slot, or if noise is not shared."""
+    neighbourhoods see each other, if an ego reads another slot, or if noise is not shared; and
+    (issue 17) on full attention inside each neighbourhood: several neighbourhoods here hold two
+    robots more than r_c apart, which must not attend to each other."""
     b, n = 2, 10
     obs = random_obs(b, n, generator=gen)
     pos = torch.stack([grid_positions(n, 0.0, 700.0, gen) for _ in range(b)])
@@ -236,11 +238,12 @@ def test_decentralized_equals_each_robot_running_the_model_on_its_own_neighbourh
     got = tiny_madp.sample_decentralized(obs, pos, num_steps=6, valid=valid, noise=noise, sampler=sampler)
     mask = tiny_madp.attention_mask(pos, valid)
     tokens = tiny_madp.embed_tokens(obs, pos, mask, valid)
-    sizes = set()
+    sizes, not_cliques = set(), 0
     for s in range(b):
         for i in range(int(valid[s].sum())):
             hood = mask[s, i].nonzero().flatten()
             sizes.add(len(hood))
+            not_cliques += not bool(mask[s][hood][:, hood].all())
             p = pos[s, hood][None]
             m = tiny_madp.attention_mask(p)
             memory = tiny_madp.encode_tokens(tokens[s, hood][None], p, m)
@@ -248,6 +251,7 @@ def test_decentralized_equals_each_robot_running_the_model_on_its_own_neighbourh
             own = int((hood == i).nonzero())
             assert torch.allclose(got[s, i], x[0, own], atol=1e-5), (s, i)
     assert len(sizes) > 2  # neighbourhoods of several sizes, so they overlap without being equal
+    assert not_cliques >= 3  # and not whole connected groups: the packed mask must still cut pairs > r_c
     assert torch.equal(got[1, -2:], torch.zeros(2, 2))
 
 

@@ -28,6 +28,25 @@ def test_speed_is_clipped_and_positions_clamped(env):
     assert env.positions_m[1, 0] == pytest.approx(1e-4)  # clamped 1e-4 m inside the border
 
 
+def test_every_border_puts_robots_back_just_inside():
+    """SPEC §2: a position at or beyond the border is put back 1e-4 m inside it, on all four sides.
+    Robots 0 and 2 land exactly on x = 1024 / y = 1024 (fails if the upper clamp is dropped, the
+    issue-17 mutation that let robots leave the world at x >= 1024, or if it tests > instead of >=),
+    robot 1 exactly on x = 0 (fails on < instead of <=), robots 3 and 4 drive far past the upper and
+    lower corners."""
+    start = np.array([[1023.0, 600.0], [1.0, 500.0], [600.0, 1023.0], [1000.0, 1010.0], [20.0, 10.0]])
+    sc = Scenario(np.array([[512.0, 512.0, 50.0, 1.0]]), start, SimParams(num_robots=5, num_features=1))
+    env = CoverageEnv(sc)
+    u = np.array([[5.0, 0.0], [-5.0, 0.0], [0.0, 5.0], [3.0, 4.0], [-3.0, -4.0]])  # 5 m/s: 1 m per step
+    hi, lo = 1024.0 - 1e-4, 1e-4
+    env.step(u)
+    assert (env.positions_m[0, 0], env.positions_m[1, 0], env.positions_m[2, 1]) == (hi, lo, hi)
+    for _ in range(60):
+        env.step(u)
+        assert ((env.positions_m > 0) & (env.positions_m < 1024)).all()
+    np.testing.assert_array_equal(env.positions_m, [[hi, 600.0], [lo, 500.0], [600.0, hi], [hi, hi], [lo, lo]])
+
+
 def test_sensing_copies_the_square_around_each_robot(env):
     env.reset()
     c = env.cells()[2]
