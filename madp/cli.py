@@ -1,7 +1,8 @@
 """``madp``: the command line. Thin commands that parse options and call the layers.
 
-User mistakes (a bad flag, a missing or malformed file, a wrong schema version) end with one line
-``madp: error: …`` on stderr and exit status 2; set MADP_DEBUG=1 to see the traceback instead.
+User mistakes (a bad flag or value, a missing or malformed file, a wrong schema version, an output
+directory another job is writing) end with one line ``madp: error: …`` on stderr and exit status 2;
+set MADP_DEBUG=1 to see the traceback instead.
 """
 
 from __future__ import annotations
@@ -30,9 +31,11 @@ class UserError(Exception):
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
+    from madp.io.lock import DirectoryLocked
+    from madp.io.owned import NotOwned
     from madp.sim.scenario import ScenarioError
 
-    errors: list[type[BaseException]] = [UserError, ScenarioError, ValueError, OSError]
+    errors: list[type[BaseException]] = [UserError, ScenarioError, ValueError, OSError, DirectoryLocked, NotOwned]
     try:
         from madp.data_schema import DataError
 
@@ -43,10 +46,9 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
 
 def _write_json(path: Path, obj: object) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=1) + "\n")
-    tmp.replace(path)
+    from madp.io.atomic import write_text_atomic
+
+    write_text_atomic(path, json.dumps(obj, indent=1) + "\n")
 
 
 # --- rollout ---------------------------------------------------------------------------------
@@ -99,7 +101,7 @@ def datagen(
     world_size: int = typer.Option(1024, help="World side (m); 1 m cells."),
     samples_per_shard: int = typer.Option(512, min=1, help="Samples per shard (the last of a split holds the rest)."),
     shards: Optional[str] = typer.Option(None, help="Run only shard tasks I:J of the plan (merge parts later)."),
-    overwrite: bool = typer.Option(False, help="Replace a directory made with other parameters."),
+    overwrite: bool = typer.Option(False, help="Replace a dataset made with other parameters: removes only the files madp wrote there (its manifest, shard records and the shards they list); any other file makes it refuse, naming the file."),
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
@@ -163,7 +165,7 @@ def dataset_verify_cmd(root: Path = typer.Argument(..., help="Dataset directory.
 def dataset_convert_cmd(root: Path = typer.Argument(..., help="Dataset directory."),
                         to: str = typer.Option(..., "--to", help="mcap | parquet"),
                         out: Path = typer.Option(..., help="Directory for the converted dataset."),
-                        overwrite: bool = typer.Option(False, help="Allow a non-empty --out.")) -> None:
+                        overwrite: bool = typer.Option(False, help="Replace a dataset in --out: removes only its manifest and the shards madp wrote there; any other file makes it refuse, naming the file.")) -> None:
     """Re-encode a dataset (same samples, same manifest content)."""
     from madp.data_schema.dataset import convert_dataset
 
@@ -251,7 +253,7 @@ def eval_cmd(
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     cities: Optional[Path] = typer.Option(None, help="Directory of city files (default: the 40 cities shipped with madp)."),
     out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
-    overwrite: bool = typer.Option(False, help="Replace results made with other settings."),
+    overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots and MCAP rollouts."""
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
@@ -440,20 +442,52 @@ def bench_infer_cmd(
         _write_json(out, r)
 
 
+def _click_exceptions():
+    """click's exception classes as typer raises them (recent typer vendors click as typer._click)."""
+    import typer.core
+
+    mod = getattr(typer.core, "_click", None)
+    if mod is None:  # typer < 0.2x: click itself
+        import click as mod
+    return mod.exceptions
+
+
+def _fail(msg: str) -> None:
+    sys.stderr.write(f"madp: error: {' '.join(msg.split())}\n")
+    sys.exit(2)
+
+
 def main(argv: Optional[List[str]] = None) -> None:
-    """Entry point: run the app, turning user mistakes into one line and exit status 2."""
+    """Entry point: run the app, turning user mistakes into one line and exit status 2.
+
+    Bad flags and values (typer's range checks included) are click exceptions: printed as one line,
+    not click's usage box. Running a group without arguments still prints its help."""
     args = sys.argv[1:] if argv is None else argv
+    cx = _click_exceptions()
     try:
-        app(args=args, prog_name="madp")  # standalone: usage errors print and exit 2 themselves
+        rv = app(args=args, prog_name="madp", standalone_mode=False)
+    except getattr(cx, "NoArgsIsHelpError", ()) as e:
+        e.show()
+        sys.exit(e.exit_code)
+    except cx.ClickException as e:
+        if os.environ.get("MADP_DEBUG"):
+            raise
+        _fail(e.format_message())
+    except typer.Abort as e:  # typer's translation of an EOFError (a file that ends early)
+        if os.environ.get("MADP_DEBUG"):
+            raise
+        _fail(f"unexpected end of input ({type(e.__cause__).__name__ if e.__cause__ else 'aborted'})")
     except KeyboardInterrupt:
         sys.stderr.write("madp: interrupted\n")
         sys.exit(130)
     except _user_errors() as e:
         if os.environ.get("MADP_DEBUG"):
             raise
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-        sys.stderr.write(f"madp: error: {msg}\n")
-        sys.exit(2)
+        _fail(str(e).splitlines()[0] if str(e) else type(e).__name__)
+    if rv == 130:  # typer's translation of KeyboardInterrupt
+        sys.stderr.write("madp: interrupted\n")
+    if isinstance(rv, int) and rv:
+        sys.exit(rv)
 
 
 if __name__ == "__main__":

@@ -38,7 +38,7 @@ if [[ "${MUTATION_RESUME:-0}" != 1 ]]; then
 fi
 mkdir -p "$WORK"
 # The code, tests and configuration under test (cp -p keeps mtimes, so a resumed run sees what changed).
-for p in madp tests pyproject.toml checkpoints; do
+for p in madp tests pyproject.toml; do
     cp -rp "$ROOT/$p" "$WORK/"
 done
 find "$WORK" -name __pycache__ -prune -exec rm -rf {} +

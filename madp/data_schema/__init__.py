@@ -5,6 +5,7 @@ Public API::
     SCHEMA_VERSION, DataError, Episode, SampleBatch, iter_episodes
     Manifest, ShardInfo, SplitInfo, ActionStats, ActionStatsAccumulator, sha256_file
     write_shard(path, episodes, fmt=None, **options) -> ShardInfo
+    check_shard(path, shard_info) — size, sha256 (one streamed read) and counts before use
     iter_shard(path, fmt=None, batch_size=256) -> Iterator[SampleBatch]
     read_shard, count_samples, inspect_shard, iter_shard_episodes, convert_shard
     read_mcap_shard / write_mcap_shard, read_parquet_shard / write_parquet_shard
@@ -39,6 +40,7 @@ from .schema import (
 )
 from .shard_io import (
     ShardHeader,
+    check_shard,
     convert_shard,
     count_samples,
     inspect_shard,
@@ -68,6 +70,7 @@ __all__ = [
     "ShardHeader",
     "ShardInfo",
     "SplitInfo",
+    "check_shard",
     "convert_shard",
     "count_samples",
     "inspect_shard",

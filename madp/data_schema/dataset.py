@@ -9,9 +9,12 @@ from typing import Callable, Iterator, Optional
 
 import numpy as np
 
+from madp.io.lock import LOCK_FILENAME, locked_dir
+from madp.io.owned import clear_owned, foreign_files
+
 from .manifest import MANIFEST_FILENAME, Manifest, ShardInfo, SplitInfo
 from .schema import DataError, SampleBatch
-from .shard_io import convert_shard, iter_shard
+from .shard_io import check_shard, convert_shard, iter_shard
 
 
 def open_dataset(root: os.PathLike | str) -> Manifest:
@@ -25,6 +28,26 @@ def open_dataset(root: os.PathLike | str) -> Manifest:
 def iter_split(root: os.PathLike | str, manifest: Manifest, split: str, batch_size: int = 256) -> Iterator[SampleBatch]:
     for p in manifest.shard_paths(split, root):
         yield from iter_shard(p, manifest.format, batch_size=batch_size)
+
+
+def check_shards(root: os.PathLike | str, manifest: Manifest, splits: Optional[tuple[str, ...]] = None) -> None:
+    """Check every shard of ``splits`` (default all) against the manifest before use: size, sha256
+    (one streamed read each) and the counts and N its footer declares. DataError naming the file."""
+    for name in splits or tuple(manifest.splits):
+        if name not in manifest.splits:
+            continue
+        for s in manifest.splits[name].shards:
+            check_shard(Path(root) / s.file, s, manifest.format, num_robots=manifest.num_robots)
+
+
+def manifest_files(root: os.PathLike | str) -> list[str]:
+    """What a manifest says madp wrote in ``root``: the manifest and its shards (relative paths)."""
+    out = [MANIFEST_FILENAME]
+    try:
+        m = Manifest.load(Path(root) / MANIFEST_FILENAME)
+    except DataError:
+        return out
+    return out + [s.file for sp in m.splits.values() for s in sp.shards]
 
 
 def dataset_info(root: os.PathLike | str) -> dict:
@@ -84,23 +107,42 @@ def verify_dataset(root: os.PathLike | str, on_shard: Optional[Callable[[Path], 
 
 def convert_dataset(root: os.PathLike | str, fmt: str, out: os.PathLike | str, overwrite: bool = False) -> Manifest:
     """Re-encode every shard as ``fmt`` into ``out``; the manifest keeps its content (format, file
-    names, checksums and sizes change with the encoding)."""
+    names, checksums and sizes change with the encoding).
+
+    Each source shard is checked against the manifest (size, sha256, counts) before it is read, and
+    the samples and episodes it decodes to must match it too. ``out`` is locked while it is written;
+    ``overwrite`` replaces a dataset there, removing only the manifest, the shards it lists and the
+    shards this conversion writes (any other file is refused by name); the leftovers of an
+    interrupted conversion (no manifest yet) are simply rewritten."""
     root, out = Path(root), Path(out)
     m = open_dataset(root)
     if fmt not in ("mcap", "parquet"):
         raise DataError.at("--to", f"expected mcap or parquet, got {fmt!r}")
     if out.resolve() == root.resolve():
         raise DataError.at(out, "must differ from the source dataset directory")
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise DataError.at(out, "is not empty; choose another --out or pass --overwrite")
-    splits = {}
-    for name, sp in m.splits.items():
-        shards = []
-        for s in sp.shards:
-            dst_rel = str(Path(s.file).with_suffix("." + fmt).as_posix())
-            info = convert_shard(root / s.file, out / dst_rel)
-            shards.append(ShardInfo(dst_rel, info.num_samples, info.num_episodes, info.sha256, info.bytes))
-        splits[name] = SplitInfo(shards)
-    converted = replace(m, format=fmt, splits=splits)
-    converted.save(out / MANIFEST_FILENAME)
+    def target(s: ShardInfo) -> str:
+        return str(Path(s.file).with_suffix("." + fmt).as_posix())
+
+    mine = [target(s) for sp in m.splits.values() for s in sp.shards]
+    with locked_dir(out):
+        if any(p.name != LOCK_FILENAME for p in out.iterdir()):
+            interrupted = not (out / MANIFEST_FILENAME).exists() and not foreign_files(out, mine)
+            if overwrite:
+                clear_owned(out, manifest_files(out) + mine)
+            elif not interrupted:  # an interrupted conversion of this dataset is simply redone
+                raise DataError.at(out, "is not empty; choose another --out or pass --overwrite")
+        splits = {}
+        for name, sp in m.splits.items():
+            shards = []
+            for s in sp.shards:
+                src, dst_rel = root / s.file, target(s)
+                check_shard(src, s, m.format, num_robots=m.num_robots)
+                info = convert_shard(src, out / dst_rel)
+                if (info.num_samples, info.num_episodes) != (s.num_samples, s.num_episodes):
+                    raise DataError.at(src, f"decodes to {info.num_samples} samples in {info.num_episodes} episodes, "
+                                            f"manifest says {s.num_samples} in {s.num_episodes}")
+                shards.append(ShardInfo(dst_rel, info.num_samples, info.num_episodes, info.sha256, info.bytes))
+            splits[name] = SplitInfo(shards)
+        converted = replace(m, format=fmt, splits=splits)
+        converted.save(out / MANIFEST_FILENAME)
     return converted

@@ -39,6 +39,8 @@ from typing import Any, Mapping, Optional, Union
 
 import numpy as np
 
+from madp.io.atomic import write_text_atomic
+
 from .schema import ACTIONS_DTYPE, SCHEMA_VERSION, DataError, SampleBatch
 
 #: File name of the manifest inside a dataset directory.
@@ -127,6 +129,16 @@ def _exact_scaled_sums(x: np.ndarray) -> tuple[int, int]:
     return total, total_sq
 
 
+def _finite_number(a: Any) -> bool:
+    """A JSON number that is finite as a float (an integer beyond float range is not)."""
+    if isinstance(a, bool) or not isinstance(a, (int, float)):
+        return False
+    try:
+        return math.isfinite(a)
+    except OverflowError:
+        return False
+
+
 @dataclass(frozen=True)
 class ActionStats:
     """Per-axis statistics of expert actions U0 (m/s), for normalisation.
@@ -155,7 +167,7 @@ class ActionStats:
             if (
                 not isinstance(v, list)
                 or len(v) != 2
-                or not all(isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in v)
+                or not all(_finite_number(a) for a in v)
             ):
                 raise DataError.at(f"{where}.{key}", "expected a list of 2 finite numbers")
             vecs.append(tuple(float(a) for a in v))
@@ -433,10 +445,15 @@ class Manifest:
         num_robots = _req(d, "num_robots", int, source)
         if num_robots <= 0:
             raise DataError.at(f"{source}: num_robots", f"expected a positive integer, got {num_robots}")
+        params = dict(_req(d, "params", dict, source))
+        try:
+            dumps_canonical(params)
+        except (TypeError, ValueError):  # NaN or Infinity, which json.loads accepts
+            raise DataError.at(f"{source}: params", "expected finite JSON values") from None
         return Manifest(
             format=fmt,
             num_robots=num_robots,
-            params=dict(_req(d, "params", dict, source)),
+            params=params,
             splits=splits,
             action_stats=stats,
             created_by=_req(d, "created_by", str, source),
@@ -445,17 +462,12 @@ class Manifest:
         )
 
     def save(self, path: PathLike) -> Path:
-        """Write the canonical JSON atomically (``path.tmp`` then rename). ``path`` may be the
+        """Write the canonical JSON atomically (``manifest.json.<pid>.tmp``, fsync, rename). ``path`` may be the
         dataset directory, in which case ``manifest.json`` inside it is written."""
         p = Path(path)
         if p.is_dir():
             p = p / MANIFEST_FILENAME
-        text = self.to_json()
-        tmp = p.with_name(p.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-        os.replace(tmp, p)
-        return p
+        return write_text_atomic(p, self.to_json())
 
     @staticmethod
     def load(path: PathLike) -> "Manifest":
@@ -467,6 +479,8 @@ class Manifest:
             text = p.read_text(encoding="utf-8")
         except OSError as e:
             raise DataError.at(p, f"cannot read manifest ({e.strerror or e})") from None
+        except UnicodeDecodeError as e:
+            raise DataError.at(p, f"not UTF-8 text (byte {e.start}); expected a JSON manifest") from None
         try:
             d = json.loads(text)
         except json.JSONDecodeError as e:

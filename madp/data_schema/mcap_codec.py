@@ -120,7 +120,7 @@ def write_mcap_shard(
 
     Args:
         path: output file (written in place; :func:`madp.data_schema.write_shard` adds the atomic
-            ``.tmp`` + rename).
+            ``.<pid>.tmp`` + rename).
         episodes: whole episodes, all with the same number of robots N.
         step_seconds: simulated seconds per step for log times (0.2 s).
         visualize: also write the Foxglove topics (``/world/map`` when an episode has a

@@ -6,10 +6,13 @@ with it, so a shard can always be read back by name alone.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator, Optional, Union
+
+from madp.io.atomic import named, temp_path
 
 from . import mcap_codec, parquet_codec
 from .manifest import FORMATS, ShardInfo, sha256_file
@@ -48,7 +51,7 @@ def shard_format(path: PathLike, fmt: Optional[str] = None) -> str:
 
 
 def write_shard(path: PathLike, episodes: Iterable[Episode], fmt: Optional[str] = None, **options) -> ShardInfo:
-    """Write whole ``episodes`` as one shard, atomically (``path + '.tmp'``, fsync, ``os.replace``).
+    """Write whole ``episodes`` as one shard, atomically (``path.<pid>.tmp``, fsync, ``os.replace``).
 
     Args:
         path: destination; its suffix (``.mcap``/``.parquet``) selects the encoding.
@@ -64,18 +67,20 @@ def write_shard(path: PathLike, episodes: Iterable[Episode], fmt: Optional[str] 
     fmt = shard_format(path, fmt)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = temp_path(path)
     writer = mcap_codec.write_mcap_shard if fmt == "mcap" else parquet_codec.write_parquet_shard
     try:
         num_samples, num_episodes = writer(tmp, episodes, **options)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+        if isinstance(e, OSError):  # a full disk: say which shard
+            raise named(e, path) from None
         raise
     return ShardInfo(
         file=path.name,
@@ -84,6 +89,53 @@ def write_shard(path: PathLike, episodes: Iterable[Episode], fmt: Optional[str] 
         sha256=sha256_file(path),
         bytes=path.stat().st_size,
     )
+
+
+def check_shard(path: PathLike, expected: ShardInfo, fmt: Optional[str] = None, num_robots: Optional[int] = None,
+                copy_to: Optional[PathLike] = None, chunk_bytes: int = 8 << 20) -> None:
+    """Check a shard against its manifest entry (or shard record) before it is used.
+
+    Size and SHA-256 are computed in one streamed read (which also copies the bytes to ``copy_to``,
+    if given, so a checked copy costs no second read); then the sample and episode counts (and N,
+    if ``num_robots`` is given) that the shard's footer declares must match. Raises
+    :class:`DataError` naming the file.
+    """
+    fmt = shard_format(path, fmt)
+    h, size = hashlib.sha256(), 0
+    try:
+        with open(path, "rb") as f, (open(copy_to, "wb") if copy_to is not None else _NoSink()) as out:
+            while block := f.read(chunk_bytes):
+                h.update(block)
+                out.write(block)
+                size += len(block)
+            if copy_to is not None:
+                out.flush()
+                os.fsync(out.fileno())
+    except FileNotFoundError:
+        raise DataError.at(path, "shard is missing (listed in the manifest)") from None
+    except IsADirectoryError:
+        raise DataError.at(path, "is a directory, expected a shard file") from None
+    if size != expected.bytes:
+        raise DataError.at(path, f"size is {size} bytes, expected {expected.bytes} (manifest)")
+    if h.hexdigest() != expected.sha256:
+        raise DataError.at(path, f"sha256 is {h.hexdigest()}, expected {expected.sha256} (manifest)")
+    head = inspect_shard(path, fmt)
+    if (head.num_samples, head.num_episodes) != (expected.num_samples, expected.num_episodes):
+        raise DataError.at(path, f"holds {head.num_samples} samples in {head.num_episodes} episodes, manifest says "
+                                 f"{expected.num_samples} in {expected.num_episodes}")
+    if num_robots is not None and head.num_robots != num_robots:
+        raise DataError.at(path, f"holds {head.num_robots} robots per sample, manifest says {num_robots}")
+
+
+class _NoSink:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def write(self, block: bytes) -> None:
+        pass
 
 
 def iter_shard(
@@ -142,6 +194,7 @@ __all__ = [
     "DEFAULT_BATCH_SIZE",
     "SUFFIXES",
     "ShardHeader",
+    "check_shard",
     "convert_shard",
     "count_samples",
     "inspect_shard",

@@ -23,6 +23,8 @@ from madp.sim import SimParams
 SPLITS = ("train", "val", "test")
 SPLIT_FRACTIONS = {"val": 0.2, "test": 0.1}
 DATASET_SEED_BITS = 62
+#: Shards one split may have: episode ids are split·10⁹ + shard·10⁴ + episode (:func:`episode_id`).
+MAX_SHARDS_PER_SPLIT = 100_000
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,12 @@ class DatagenConfig:
             raise ValueError(f"--seed: expected an integer in [0, 2^32), got {self.seed}")
         if self.samples_per_shard < 1 or self.record_every < 1 or self.max_steps < 1:
             raise ValueError("samples_per_shard, record_every and max_steps must be positive")
+        shards = max(-(-n // self.samples_per_shard) for n in split_sizes(self.num_samples).values())
+        if shards > MAX_SHARDS_PER_SPLIT:  # checked before a plan of that size is ever made
+            raise ValueError(f"--n: {self.num_samples} samples make {shards} shards of {self.samples_per_shard} in one split, "
+                             f"more than the {MAX_SHARDS_PER_SPLIT} a dataset's episode ids can number; "
+                             "lower --n or raise --samples-per-shard")
+        self.params.check_fits("--num-robots/--num-features/--world-size")
         if self.policy and not 0.0 <= float(self.policy.get("beta", -1)) <= 1.0:
             raise ValueError(f"--beta: expected a probability in [0, 1], got {self.policy.get('beta')}")
 

@@ -7,10 +7,14 @@ Directory layout::
     DIR/.datagen/plan.json             the configuration; a later run must match it
     DIR/.datagen/shards/<split>-NNNNN.json   one record per finished shard (count, sha256, stats)
 
-Crash safety: a shard is written to ``*.tmp`` and renamed when complete; its record is written the
-same way afterwards. On start, stray ``*.tmp`` files are removed and every task without a record is
-(re)run, so after ``kill -9`` at any moment the same command finishes with exactly the bytes of an
-uninterrupted run.
+Crash safety: the run holds the directory's lock (:mod:`madp.io.lock`) from start to end, and its
+worker processes die with it. A shard is written to ``NAME.<pid>.tmp`` and renamed when complete;
+its record is written the same way afterwards. On start, stray temporary files are removed and every
+task without a record is (re)run, so after ``kill -9`` at any moment — of the whole process group or
+of the parent alone — the same command finishes with exactly the bytes of an uninterrupted run.
+
+``--overwrite`` removes only what madp wrote here (:func:`owned_files`); any other file makes it
+refuse, naming the file.
 """
 
 from __future__ import annotations
@@ -18,7 +22,6 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +35,12 @@ from madp.data_schema import (
     SplitInfo,
     write_shard,
 )
-from madp.data_schema.manifest import MANIFEST_FILENAME, dumps_canonical, sha256_file
+from madp.data_schema.manifest import MANIFEST_FILENAME, dumps_canonical
+from madp.data_schema.shard_io import check_shard
+from madp.io.atomic import remove_temps, temp_path, write_text_atomic
+from madp.io.lock import LOCK_FILENAME, locked_dir
+from madp.io.owned import clear_owned, foreign_files
+from madp.io.workers import die_with_parent
 
 from .episodes import shard_episodes
 from .plan import SPLITS, DatagenConfig, ShardTask, make_plan
@@ -59,16 +67,6 @@ class ShardRecord:
             raise DataError.at(where, f"malformed shard record ({e})") from None
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def run_shard(cfg: DatagenConfig, task: ShardTask, root: Path, on_sample: Callable[[], None] | None = None) -> ShardRecord:
     """Generate and write one shard, then its record. Deterministic in (cfg, task)."""
     acc = ActionStatsAccumulator() if task.split == "train" else None
@@ -84,7 +82,7 @@ def run_shard(cfg: DatagenConfig, task: ShardTask, root: Path, on_sample: Callab
     if info.num_samples != task.num_samples:  # a bug, not a user error
         raise RuntimeError(f"{info.file}: wrote {info.num_samples} samples, planned {task.num_samples}")
     record = ShardRecord(task.name, info, acc.state() if acc is not None else None)
-    _atomic_write(root / STATE_DIR / "shards" / f"{task.name}.json", dumps_canonical(record.to_dict()))
+    write_text_atomic(root / STATE_DIR / "shards" / f"{task.name}.json", dumps_canonical(record.to_dict()))
     return record
 
 
@@ -92,8 +90,9 @@ def run_shard(cfg: DatagenConfig, task: ShardTask, root: Path, on_sample: Callab
 _queue = None
 
 
-def _init_worker(queue) -> None:
+def _init_worker(queue, parent_pid: int) -> None:
     global _queue
+    die_with_parent(parent_pid)
     _queue = queue
 
 
@@ -115,23 +114,46 @@ def _worker(args) -> dict:
 
 
 # --- the run ------------------------------------------------------------------------------------
+def owned_files(root: Path) -> list[str]:
+    """What madp wrote in a dataset directory (relative paths): the manifest and the shards it
+    lists, the plan, the shard records and the shards they name. What ``--overwrite`` may remove."""
+    out = [MANIFEST_FILENAME, f"{STATE_DIR}/plan.json"]
+    try:
+        m = Manifest.load(root / MANIFEST_FILENAME)
+        out += [s.file for sp in m.splits.values() for s in sp.shards]
+    except DataError:
+        pass
+    for p in sorted((root / STATE_DIR / "shards").glob("*.json")):
+        out.append(f"{STATE_DIR}/shards/{p.name}")
+        try:
+            out.append(ShardRecord.from_dict(json.loads(p.read_text()), str(p)).info.file)
+        except (DataError, ValueError, OSError):
+            pass
+    return out
+
+
 def prepare_dir(cfg: DatagenConfig, root: Path, overwrite: bool) -> None:
-    """Create ``root`` or check it belongs to this plan; clean stray temporary files."""
+    """Check ``root`` (locked by the caller) is empty or belongs to this plan; clean stray temporary files.
+
+    With ``overwrite``, a directory of another plan is cleared of madp's files (:func:`owned_files`);
+    any other file is refused by name and nothing is removed."""
     plan_path = root / STATE_DIR / "plan.json"
     want = dumps_canonical(cfg.to_dict())
-    if root.exists() and any(root.iterdir()):
+    if any(p.name != LOCK_FILENAME for p in root.iterdir()):
         have = plan_path.read_text() if plan_path.exists() else None
         if have != want:
+            if not have:
+                foreign = foreign_files(root, owned_files(root))
+                if foreign:
+                    raise DataError.at(root, f"is not empty and holds no madp dataset plan ({foreign[0].relative_to(root)} "
+                                             "is not madp's); choose another --out")
             if not overwrite:
-                why = "was made with other parameters" if have else "is not empty and holds no madp dataset plan"
+                why = "was made with other parameters" if have else "holds madp files but no datagen plan"
                 raise DataError.at(root, f"{why}; choose another --out or pass --overwrite")
-            for child in root.iterdir():
-                shutil.rmtree(child) if child.is_dir() else child.unlink()
-    root.mkdir(parents=True, exist_ok=True)
-    for tmp in root.rglob("*.tmp"):
-        tmp.unlink()
+            clear_owned(root, owned_files(root))
+    remove_temps(root)
     if not plan_path.exists():
-        _atomic_write(plan_path, want)
+        write_text_atomic(plan_path, want)
 
 
 def load_records(root: Path, tasks: Iterable[ShardTask]) -> dict[str, ShardRecord]:
@@ -178,6 +200,12 @@ def run_datagen(
     lo, hi = shards if shards is not None else (0, len(plan))
     if not (0 <= lo <= hi <= len(plan)):
         raise ValueError(f"--shards: expected I:J within 0:{len(plan)}, got {lo}:{hi}")
+    with locked_dir(root):
+        return _run_locked(cfg, root, plan, lo, hi, workers, overwrite, progress)
+
+
+def _run_locked(cfg: DatagenConfig, root: Path, plan: list[ShardTask], lo: int, hi: int, workers: int,
+                overwrite: bool, progress: bool) -> Optional[Manifest]:
     prepare_dir(cfg, root, overwrite)
     selected = plan[lo:hi]
     done = load_records(root, selected)
@@ -198,7 +226,7 @@ def run_datagen(
             env_threads = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
             os.environ.update({k: "1" for k in env_threads})  # one BLAS thread per worker process
             try:
-                with ctx.Pool(workers, initializer=_init_worker, initargs=(queue,)) as pool:
+                with ctx.Pool(workers, initializer=_init_worker, initargs=(queue, os.getpid())) as pool:
                     args = [(cfg.to_dict(), t, str(root)) for t in todo]
                     results = pool.imap_unordered(_worker, args)
                     remaining = len(todo)
@@ -240,7 +268,10 @@ def run_datagen(
 
 
 def merge_parts(parts: list[Path], root: Path) -> Optional[Manifest]:
-    """Combine part directories made with ``--shards`` into ``root`` (copying shards and records)."""
+    """Combine part directories made with ``--shards`` into ``root`` (copying shards and records).
+
+    Every shard is checked against its record while it is copied (size, sha256, counts: one read),
+    and a shard already in ``root`` is checked again before it is kept."""
     plans = {p: (p / STATE_DIR / "plan.json") for p in parts}
     texts = set()
     for p, f in plans.items():
@@ -250,19 +281,30 @@ def merge_parts(parts: list[Path], root: Path) -> Optional[Manifest]:
     if len(texts) != 1:
         raise DataError.at(parts[0], "the parts were made with different parameters")
     cfg = DatagenConfig.from_dict(json.loads(texts.pop()))
+    if any(Path(p).resolve() == Path(root).resolve() for p in parts):
+        raise DataError.at(root, "--out must differ from every part directory")
+    with locked_dir(root):
+        return _merge_locked(cfg, parts, root)
+
+
+def _merge_locked(cfg: DatagenConfig, parts: list[Path], root: Path) -> Optional[Manifest]:
     prepare_dir(cfg, root, overwrite=False)
     plan = make_plan(cfg)
+    n = cfg.params.num_robots
     for p in parts:
         for name, rec in load_records(p, plan).items():
             dst = root / rec.info.file
-            if not dst.exists() or dst.stat().st_size != rec.info.bytes:
+            try:
+                check_shard(dst, rec.info, num_robots=n)  # already merged and intact: keep it
+            except DataError:
                 dst.parent.mkdir(parents=True, exist_ok=True)
-                tmp = dst.with_name(dst.name + ".tmp")
-                shutil.copyfile(p / rec.info.file, tmp)
-                if sha256_file(tmp) != rec.info.sha256:
-                    raise DataError.at(p / rec.info.file, "sha256 does not match its shard record")
-                os.replace(tmp, dst)
-            _atomic_write(root / STATE_DIR / "shards" / f"{name}.json", dumps_canonical(rec.to_dict()))
+                tmp = temp_path(dst)
+                try:
+                    check_shard(p / rec.info.file, rec.info, num_robots=n, copy_to=tmp)
+                    os.replace(tmp, dst)
+                finally:
+                    tmp.unlink(missing_ok=True)
+            write_text_atomic(root / STATE_DIR / "shards" / f"{name}.json", dumps_canonical(rec.to_dict()))
     records = load_records(root, plan)
     if len(records) < len(plan):
         missing = [t.name for t in plan if t.name not in records]

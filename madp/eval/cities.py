@@ -286,8 +286,10 @@ def _as_float(value, path: Path, where: str) -> float:
         raise ValueError(f"{path}: {where}: expected a number, got {value!r}")
     try:
         return float(value)
+    except OverflowError:  # an integer beyond float range: out of range below, like inf
+        return math.inf
     except (TypeError, ValueError):
-        raise ValueError(f"{path}: {where}: expected a number, got {value!r}") from None
+        raise ValueError(f"{path}: {where}: expected a number, got {str(value)[:40]!r}") from None
 
 
 def read_signals_csv(path: str | Path, text: str | None = None) -> np.ndarray:
@@ -303,7 +305,13 @@ def read_signals_csv(path: str | Path, text: str | None = None) -> np.ndarray:
     path = Path(path)
     if text is None:
         text = _read_text(path)
-    rows = csv.reader(io.StringIO(text))
+    try:
+        return _parse_csv(path, csv.reader(io.StringIO(text, newline="")))
+    except csv.Error as e:
+        raise ValueError(f"{path}: malformed CSV ({e})") from None
+
+
+def _parse_csv(path: Path, rows) -> np.ndarray:
     header = None
     for header in rows:
         if any(cell.strip() for cell in header):

@@ -41,7 +41,7 @@ per-step SceneUpdate except ``/actions`` the entities are in robot order, one pe
 A metadata record :data:`METADATA_NAME` carries the controller, title, N, T, dt and the recording
 parameters. Log (and publish) times are simulated time, step t at ``t · dt_s`` (integer ns), never
 wall clock; with fixed zstd chunking the file's bytes are a pure function of the input. The file is
-written to ``path + ".tmp"`` and renamed into place.
+written to ``path.<pid>.tmp`` and renamed into place.
 
 In Foxglove: open the file, add a **3D** panel, set its display frame to ``world`` and (for a map
 view) switch the camera to 2D / top-down; enable the topics in the panel's settings. The grid's
@@ -66,6 +66,7 @@ from madp.data_schema.foxglove_viz import (
     actions_message,
     grid_message,
 )
+from madp.io.atomic import named, temp_path
 
 PathLike = Union[str, os.PathLike]
 
@@ -353,7 +354,7 @@ def write_rollout_mcap(
     """Write one evaluation rollout as a Foxglove-viewable MCAP file (see the module docstring).
 
     Args:
-        path: output file; written as ``path + ".tmp"`` and renamed into place.
+        path: output file; written as ``path.<pid>.tmp`` and renamed into place.
         world_map: ``[Wx, Wy]`` importance map, indexed ``[x, y]``, 1 m cells (the world is
             ``[0, Wx] × [0, Wy]`` m).
         positions_m: ``[T+1, N, 2]`` robot positions at steps 0..T, m.
@@ -410,7 +411,7 @@ def write_rollout_mcap(
         scene_topics.append(TOPIC_SAMPLES)
 
     final = Path(os.fspath(path))
-    tmp = final.with_name(final.name + ".tmp")
+    tmp = temp_path(final)
     counts: dict[str, int] = {}
     try:
         with open(tmp, "wb") as f:
@@ -473,6 +474,9 @@ def write_rollout_mcap(
             )
             writer.finish()
         os.replace(tmp, final)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise named(e, final) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

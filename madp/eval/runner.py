@@ -9,7 +9,9 @@ Layout of ``OUT/<suite>/``::
     summary.md, summary.json, *.png      from :mod:`madp.eval.report`
     rollouts/<env>-<controller>.mcap     with --record K: the first K environments, for Foxglove
 
-An interrupted evaluation resumes: finished jobs are kept, the rest run.
+An interrupted evaluation resumes: finished jobs are kept, the rest run. The suite directory is
+locked (:mod:`madp.io.lock`) while a run writes it, its worker processes die with it, and
+``--overwrite`` removes only the files listed above (:func:`owned_files`), refusing any other.
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from madp.data_schema.manifest import sha256_file
+from madp.io.atomic import named, remove_temps, temp_path, write_text_atomic
+from madp.io.lock import locked_dir
+from madp.io.owned import clear_owned
+from madp.io.workers import die_with_parent
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
 from madp.sim import ClairvoyantCVT, CoverageEnv, DecentralizedCVT
 
@@ -136,9 +142,13 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
 
 def _save_job(job_file: Path, costs: np.ndarray, step_s: np.ndarray, num_robots: int, num_features: int) -> None:
     job_file.parent.mkdir(parents=True, exist_ok=True)
-    tmp = job_file.with_name(job_file.name + ".tmp.npz")
-    np.savez(tmp, cost=costs, step_s=step_s, num_robots=num_robots, num_features=num_features)
-    os.replace(tmp, job_file)
+    tmp = temp_path(job_file, ".npz")
+    try:
+        np.savez(tmp, cost=costs, step_s=step_s, num_robots=num_robots, num_features=num_features)
+        os.replace(tmp, job_file)
+    except OSError as e:  # a full disk: say which file
+        tmp.unlink(missing_ok=True)
+        raise named(e, job_file) from None
 
 
 def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir: Path) -> list[dict]:
@@ -240,10 +250,43 @@ def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit:
     return EvalConfig(**{**cfg.__dict__, "lpac": paths["lpac"], "madp": paths["madp"], "controllers": tuple(keep)}), tuple(keep)
 
 
+def owned_files(suite_dir: Path) -> list[str]:
+    """What madp wrote in a suite directory (relative paths): its config, job files, recordings,
+    tables and every file the report lists in ``summary.json``. What ``--overwrite`` may remove."""
+    out = ["config.json", "curves.parquet", "results.parquet", "summary.md", "summary.json"]
+    out += [f"jobs/{p.name}" for p in (suite_dir / "jobs").glob("*.npz")]
+    out += [f"rollouts/{p.name}" for p in (suite_dir / "rollouts").glob("*.mcap")]
+    try:
+        files = json.loads((suite_dir / "summary.json").read_text())["metadata"]["files"]
+        out += [f for f in files if isinstance(f, str) and "/" not in f]
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return out
+
+
+def _read_config(cfg_file: Path) -> dict | None:
+    """The suite's config.json, or None when there is none (or a kill left it unreadable)."""
+    try:
+        old = json.loads(cfg_file.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):
+        raise ValueError(f"{cfg_file}: unreadable; pass --overwrite to start the suite afresh") from None
+    if not isinstance(old, dict):
+        raise ValueError(f"{cfg_file}: expected a JSON object; pass --overwrite to start the suite afresh")
+    return old
+
+
 def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bool = True) -> dict:
     """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
     envs = suite_envs(suite, cfg.num_envs, cfg.cities)
     suite_dir = Path(cfg.out) / suite
+    with locked_dir(suite_dir):
+        return _run_suite_locked(cfg, suite, envs, suite_dir, overwrite, progress)
+
+
+def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_dir: Path, overwrite: bool,
+                      progress: bool) -> dict:
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
                 "record": cfg.record, "env_keys": [e.key for e in envs],
@@ -251,8 +294,13 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
     cfg_file = suite_dir / "config.json"
-    if cfg_file.exists():
-        old = json.loads(cfg_file.read_text())
+    try:
+        old = _read_config(cfg_file)
+    except ValueError:
+        if not overwrite:
+            raise
+        old = {"checkpoints": {}}  # differs in every setting: the suite starts afresh
+    if old is not None:
         # Controllers may be added to a finished suite. A new checkpoint invalidates only the controllers
         # that use it; any other setting that differs invalidates the whole suite.
         changed = {k for k in settings if old.get(k, SETTING_DEFAULTS.get(k)) != settings[k]}
@@ -264,9 +312,7 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
                 raise ValueError(f"{suite_dir}: holds an evaluation with other settings ({what}); "
                                  "pass --overwrite or another --out")
             if changed:
-                import shutil
-
-                shutil.rmtree(suite_dir)
+                clear_owned(suite_dir, owned_files(suite_dir))
             else:
                 stale = [c for c in LEARNED if any(c.startswith(k) for k in retrained)]
                 for c in stale:
@@ -275,9 +321,8 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
         if not changed:
             checkpoints = {**old.get("checkpoints", {}), **checkpoints}
     suite_dir.mkdir(parents=True, exist_ok=True)
-    cfg_file.write_text(json.dumps({**settings, "checkpoints": checkpoints}, indent=1) + "\n")
-    for stray in suite_dir.rglob("*.tmp*"):
-        stray.unlink()
+    write_text_atomic(cfg_file, json.dumps({**settings, "checkpoints": checkpoints}, indent=1) + "\n")
+    remove_temps(suite_dir)
     # The first --record environments of the suite (in suite order) are recorded as MCAP.
     tasks = plan_jobs(envs, cfg.controllers, suite_dir, cfg.record)
     total = len(envs) * len(cfg.controllers)
@@ -294,7 +339,7 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
                 bar.advance(task, run_task(cfg, c, es, suite_dir, rec))
         else:
             os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-            with mp.get_context("spawn").Pool(workers) as pool:
+            with mp.get_context("spawn").Pool(workers, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
                 for n in pool.imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec) for c, es, rec in tasks]):
                     bar.advance(task, n)
     write_tables(envs, cfg, suite_dir)
@@ -337,6 +382,10 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     ctab = pa.table({k: pa.array(np.concatenate([np.asarray(x) for x in v]), type=types.get(k)) for k, v in curves.items()})
     rtab = pa.table({k: pa.array(v, type=types.get(k)) for k, v in results.items()})
     for name, tab in (("curves", ctab), ("results", rtab)):
-        tmp = suite_dir / f"{name}.parquet.tmp"
-        pq.write_table(tab, tmp, compression="zstd")
-        os.replace(tmp, suite_dir / f"{name}.parquet")
+        tmp = temp_path(suite_dir / f"{name}.parquet")
+        try:
+            pq.write_table(tab, tmp, compression="zstd")
+            os.replace(tmp, suite_dir / f"{name}.parquet")
+        except OSError as e:
+            tmp.unlink(missing_ok=True)
+            raise named(e, suite_dir / f"{name}.parquet") from None

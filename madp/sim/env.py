@@ -18,7 +18,7 @@ from .idf import importance_map
 from .observations import observation_tensor
 from .params import SimParams
 from .robot_maps import RobotMaps, robot_cells
-from .scenario import Scenario
+from .scenario import Scenario, ScenarioError
 from .voronoi import ColumnPrefix, coverage_cost
 
 BORDER_EPS_M = 1e-4
@@ -33,6 +33,7 @@ class CoverageEnv:
         self.scenario = scenario
         self.params: SimParams = scenario.params
         p = self.params
+        p.check_fits(f"scenario {scenario.name or scenario.seed}")  # before the maps are allocated
         if world_map is None:
             world_map = importance_map(scenario.features, p.world_size, p.truncation_sigmas)
         self.world_map = np.asarray(world_map, dtype=np.float64)
@@ -54,6 +55,9 @@ class CoverageEnv:
         self._record_history()
         self.steps = 0
         self.cost0 = coverage_cost(self.prefix, self.positions_m)
+        if not self.cost0 > 0:
+            raise ScenarioError(f"scenario {self.scenario.name or self.scenario.seed}: J(0) = {self.cost0} (no importance "
+                                "away from the robots), so J(t)/J(0) is undefined")
         return self.positions_m
 
     def step(self, actions_mps: np.ndarray) -> np.ndarray:

@@ -53,8 +53,9 @@ def importance_map(
         iy = _axis_integral(np.arange(y0, y1 + 1, dtype=np.float64), my, sigma)
         # Truncation test in float32, as the library evaluates it (cells exactly at 2σ agree).
         s32 = np.float32(sigma)
-        tx = (centres_f32[x0:x1] - np.float32(mx)) / s32
-        ty = (centres_f32[y0:y1] - np.float32(my)) / s32
+        with np.errstate(divide="ignore", invalid="ignore"):  # σ below float32's range: no cell inside
+            tx = (centres_f32[x0:x1] - np.float32(mx)) / s32
+            ty = (centres_f32[y0:y1] - np.float32(my)) / s32
         inside = (tx[:, None] * tx[:, None] + ty[None, :] * ty[None, :]) <= np.float32(truncation**2)
         out[x0:x1, y0:y1] += np.where(inside, mass * np.outer(ix, iy), 0.0)
     peak_value = out.max()

@@ -2,7 +2,27 @@
 
 from __future__ import annotations
 
+import math
+import numbers
+import os
 from dataclasses import asdict, dataclass, fields
+
+
+def physical_memory_bytes() -> int | None:
+    """This machine's physical memory, or None where the OS does not say."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _is_number(v: object) -> bool:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:  # an integer beyond float range
+        return False
 
 
 @dataclass(frozen=True)
@@ -28,6 +48,19 @@ class SimParams:
     check_oscillations: bool = True
 
     def __post_init__(self) -> None:
+        for f in fields(self):  # types first: a JSON file may hold anything
+            v = getattr(self, f.name)
+            if f.name in ("sigma_range_m", "peak_range"):
+                if not isinstance(v, (tuple, list)) or len(v) != 2 or not all(_is_number(x) for x in v):
+                    raise ValueError(f"{f.name} must be a (low, high) pair of finite numbers, got {v!r}")
+            elif f.type in ("int", int):
+                if not isinstance(v, numbers.Integral) or isinstance(v, bool):
+                    raise ValueError(f"{f.name} must be an integer, got {v!r}")
+                object.__setattr__(self, f.name, int(v))  # numpy integers too
+            elif f.type in ("float", float) and not _is_number(v):
+                raise ValueError(f"{f.name} must be a finite number, got {v!r}")
+            elif f.type in ("bool", bool) and not isinstance(v, bool):
+                raise ValueError(f"{f.name} must be true or false, got {v!r}")
         object.__setattr__(self, "sigma_range_m", tuple(float(v) for v in self.sigma_range_m))
         object.__setattr__(self, "peak_range", tuple(float(v) for v in self.peak_range))
         problems = []
@@ -48,8 +81,26 @@ class SimParams:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         if self.local_map_size % 16 or self.sensor_size % 2:
             problems.append("local_map_size must be a multiple of 16 and sensor_size even")
+        for name in ("truncation_sigmas", "sensor_size", "local_map_size", "obs_size", "history_size"):
+            if not getattr(self, name) > 0:
+                problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         if problems:
             raise ValueError("; ".join(problems))
+
+    def env_bytes(self) -> int:
+        """The least memory one environment takes: every robot's zero-padded map (float32), the
+        world map with its prefix sums (float64) and the features."""
+        padded = self.world_size + self.local_map_size
+        return 4 * self.num_robots * padded * padded + 48 * self.world_size * self.world_size + 32 * self.num_features
+
+    def check_fits(self, where: str) -> None:
+        """Refuse, before anything is allocated, sizes whose environment cannot fit in this machine's
+        memory (``where`` names the flags or file that chose them)."""
+        need, have = self.env_bytes(), physical_memory_bytes()
+        if have is not None and need > have:
+            raise ValueError(f"{where}: N = {self.num_robots} robots and F = {self.num_features} features on a "
+                             f"{self.world_size} m world need at least {need / 2**30:.1f} GiB for one environment, "
+                             f"more than this machine's {have / 2**30:.1f} GiB")
 
     def to_dict(self) -> dict:
         d = asdict(self)

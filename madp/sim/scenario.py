@@ -7,7 +7,10 @@ The minimal hand-written file::
 
 Optional keys: ``"params"`` (overrides of :class:`SimParams`, e.g. ``{"comm_radius_m": 128}``),
 ``"name"``, ``"seed"``, ``"source"``. Everything not given takes the SPEC default. ``num_robots`` and
-``num_features`` follow the lists. Errors are one line naming the file and field.
+``num_features`` follow the lists. Errors are one line naming the file and field. A scenario must
+fit in memory and have importance to cover: its sizes are checked before anything is allocated,
+and a scenario whose J(0) would be 0 (no features, features outside the world, σ too small to put
+importance on a cell) is refused with the reason, since J(t)/J(0) is then undefined.
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .idf import random_features
+from madp.io.atomic import write_text_atomic
+
+from .idf import importance_map, random_features
 from .params import SimParams
 
 BORDER_EPS_M = 1e-4
@@ -83,10 +88,7 @@ class Scenario:
         return d
 
     def save(self, path: str | Path) -> None:
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
-        tmp.replace(path)
+        write_text_atomic(path, json.dumps(self.to_dict(), indent=1) + "\n")
 
     @classmethod
     def from_dict(cls, d: object, where: str = "scenario") -> "Scenario":
@@ -112,17 +114,24 @@ class Scenario:
             i = int(outside[0])
             raise ScenarioError(f"{where}: field 'robots[{i}]' = {robots[i].tolist()} is outside the world [0, {w}]")
         seed = d.get("seed")
-        if seed is not None and not isinstance(seed, int):
+        if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
             raise ScenarioError(f"{where}: field 'seed' must be an integer")
+        try:
+            params.check_fits(where)
+        except ValueError as e:
+            raise ScenarioError(str(e)) from None
+        check_coverable(feats, params, where)
         return cls(feats, robots, params, name=str(d.get("name", "")), seed=seed, source=str(d.get("source", "")))
 
     @classmethod
     def load(cls, path: str | Path) -> "Scenario":
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
         except OSError as e:
             raise ScenarioError(f"{path}: cannot read scenario file ({e.strerror or e})") from None
+        except UnicodeDecodeError as e:
+            raise ScenarioError(f"{path}: not UTF-8 text (byte {e.start}); expected a JSON scenario") from None
         try:
             d = json.loads(text)
         except json.JSONDecodeError as e:
@@ -133,10 +142,32 @@ class Scenario:
         return replace(self, params=replace(self.params, **changes))
 
 
+def check_coverable(features: np.ndarray, params: SimParams, where: str) -> None:
+    """Raise :class:`ScenarioError` with the reason if the features put no importance on the world
+    (the map is 0 everywhere, so J(0) = 0 and J(t)/J(0) is undefined)."""
+    why = None
+    if len(features) == 0:
+        why = "it has no features"
+    elif not importance_map(features, params.world_size, params.truncation_sigmas).any():
+        w, reach = params.world_size, params.truncation_sigmas * features[:, 2]
+        outside = ((features[:, 0] + reach < 0) | (features[:, 0] - reach > w)
+                   | (features[:, 1] + reach < 0) | (features[:, 1] - reach > w))
+        why = (f"every feature lies outside the world [0, {w}]² (beyond {params.truncation_sigmas:g} σ)" if outside.all()
+               else f"its features' σ (smallest {features[:, 2].min():.3g} m) or peaks are too small to give any cell importance")
+    if why:
+        raise ScenarioError(f"{where}: the importance map is 0 everywhere ({why}), so J(0) = 0 and J(t)/J(0) is undefined")
+
+
 def _number(v: object, what: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise ScenarioError(f"{what} must be a finite number, got {v!r}")
-    return float(v)
+    try:
+        x = float(v)
+    except OverflowError:  # an integer beyond float range
+        x = math.inf
+    if not math.isfinite(x):
+        raise ScenarioError(f"{what} must be a finite number, got {str(v)[:20]}{'…' if len(str(v)) > 20 else ''}")
+    return x
 
 
 def _points(v: object, where: str, name: str) -> np.ndarray:
@@ -166,5 +197,7 @@ def _features(v: object, where: str) -> np.ndarray:
         peak = _number(f["peak"], f"{what}.peak")
         if sigma <= 0 or peak <= 0:
             raise ScenarioError(f"{what}: sigma and peak must be > 0, got sigma={sigma}, peak={peak}")
+        if not math.isfinite(2.0 * math.pi * sigma * sigma * peak):
+            raise ScenarioError(f"{what}: sigma and peak are too large (the feature's mass 2πσ²·peak overflows)")
         out[i] = [mean[0], mean[1], sigma, peak]
     return out

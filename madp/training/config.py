@@ -54,9 +54,16 @@ class TrainConfig:
             raise ValueError(f"--model: expected madp or lpac, got {self.model!r}")
         if self.preset not in ("paper", "cpu"):
             raise ValueError(f"--preset: expected paper or cpu, got {self.preset!r}")
-        for name in ("epochs", "batch_size"):
-            if getattr(self, name) < 1:
+        for name in ("epochs", "batch_size", "checkpoint_every", "val_samples", "log_every", "buffer_size", "patience"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')}: expected a positive integer, got {getattr(self, name)}")
+        for name in ("max_steps_per_epoch", "num_workers", "stop_after_steps", "seed", "warmup_steps"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
+                flag = {"num_workers": "workers"}.get(name, name).replace("_", "-")
+                raise ValueError(f"--{flag}: expected a non-negative integer, got {getattr(self, name)}")
+        if not 0.0 <= self.ema_decay < 1.0 or not math.isfinite(self.min_delta) or self.min_delta < 0 \
+                or not self.grad_clip >= 0 or not self.weight_decay >= 0:
+            raise ValueError("ema_decay must lie in [0, 1); min_delta, grad_clip and weight_decay must be >= 0")
         if self.lr_schedule not in ("constant", "cosine"):
             raise ValueError(f"lr_schedule: expected constant or cosine, got {self.lr_schedule!r}")
         if self.augment not in ("none", "d4"):
@@ -69,7 +76,7 @@ class TrainConfig:
                              f"got {list(self.data_weights)}")
         if self.edge_weight not in ("binary", "gaussian"):
             raise ValueError(f"--edge-weight: expected binary or gaussian, got {self.edge_weight!r}")
-        if not self.lr > 0:
+        if not (self.lr > 0 and math.isfinite(self.lr)):
             raise ValueError(f"--lr: expected a positive learning rate, got {self.lr}")
 
     def to_dict(self) -> dict:

@@ -12,6 +12,10 @@ Run directory::
                            ({"epoch", "val_loss", ...}); TensorBoard events too when installed
     checkpoints/latest/    see :mod:`.checkpoint`
     checkpoints/best/      lowest validation loss so far
+
+Before anything is trained, every shard the run reads is checked against its manifest (size,
+sha256, counts), a run that would do no step is refused, and the run directory is locked
+(:mod:`madp.io.lock`) until the run ends; a resume refuses a damaged checkpoint by name.
 """
 
 from __future__ import annotations
@@ -28,11 +32,13 @@ import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader
 
-from madp.data_schema.dataset import open_dataset
+from madp.data_schema.dataset import check_shards, open_dataset
 from madp.data_schema.manifest import sha256_file
+from madp.io.atomic import named, write_text_atomic
+from madp.io.lock import locked_dir
 from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
 
-from .checkpoint import load_checkpoint_state, save_checkpoint
+from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
 from .stream import ShardStream, StreamPosition
 
@@ -90,6 +96,8 @@ class Trainer:
         self.manifest = self.manifests[0]
         if self.manifest.action_stats is None:
             raise ValueError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
+        for i, (d, m) in enumerate(zip(cfg.datasets, self.manifests)):
+            check_shards(d, m, ("train", "val") if i == 0 else ("train",))  # one read each, before use
         for d, m in zip(cfg.more_data, self.manifests[1:]):
             sim, sim0 = m.params.get("params", {}), self.manifest.params.get("params", {})
             for key in ("num_robots", "world_size"):
@@ -116,18 +124,35 @@ class Trainer:
                 self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
         self.train_data = ShardStream(cfg.datasets, self.manifests, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
                                       self.rank, self.world, augment=cfg.augment, weights=cfg.weights)
+        self._refuse_empty_epochs()
         self.step, self.epoch, self.batches_done = 0, 0, 0
         self.best_val, self.bad_epochs = math.inf, 0
         self.seen_ids: set = set()  # (episode, step) of trained samples, for the DDP check
         ckpt = self.out / "checkpoints" / "latest"
+        if self.is_main and (self.out / "checkpoints").is_dir():
+            recover_checkpoints(self.out / "checkpoints")
         if resume:
             self._load(ckpt)
         elif self.is_main and ckpt.exists():
             raise ValueError(f"{self.out}: a run is already there; pass --resume to continue it or choose another --out")
+        elif self.is_main:
+            (self.out / "metrics.jsonl").unlink(missing_ok=True)  # a fresh start: lines of a run killed before its first checkpoint
         if self.is_main:
             self.out.mkdir(parents=True, exist_ok=True)
             self._write_config()
         self.tb = self._tensorboard() if self.is_main else None
+
+    def _refuse_empty_epochs(self) -> None:
+        """A run in which some epoch would do no step is a mistake in the flags: refuse it."""
+        cfg = self.cfg
+        for e in range(cfg.epochs):
+            if self._epoch_batches(e) > 0:
+                continue
+            streams = self.world * max(cfg.num_workers, 1)
+            _, per = self.train_data._plan(e, streams)
+            raise ValueError(f"--batch-size {cfg.batch_size}: each of the {streams} training stream(s) (ranks x --workers) "
+                             f"gets {per} samples in epoch {e}, less than one batch, so no step would run; "
+                             "use a smaller --batch-size or fewer --workers")
 
     def _init_from(self, path: Path, load_weights: bool = True) -> None:
         """Warm start: the weights of a policy file of the same model (optimizer and counters fresh)."""
@@ -156,9 +181,7 @@ class Trainer:
         d = {"train": self.cfg.to_dict(), "model": self.raw.config.to_dict(),
              "num_parameters": sum(p.numel() for p in self.raw.parameters()),
              "world_size": self.world, "device": str(self.device), **self._meta(None)}
-        tmp = self.out / "config.json.tmp"
-        tmp.write_text(json.dumps(d, indent=1) + "\n")
-        tmp.replace(self.out / "config.json")
+        write_text_atomic(self.out / "config.json", json.dumps(d, indent=1) + "\n")
 
     def _tensorboard(self):
         try:
@@ -170,8 +193,11 @@ class Trainer:
     def _log(self, record: dict) -> None:
         if not self.is_main:
             return
-        with open(self.out / "metrics.jsonl", "a") as f:
-            f.write(json.dumps(record) + "\n")
+        try:
+            with open(self.out / "metrics.jsonl", "a") as f:
+                f.write(json.dumps(record) + "\n")
+        except OSError as e:  # a full disk: say which file
+            raise named(e, self.out / "metrics.jsonl") from None
         if self.tb is not None:
             for k, v in record.items():
                 if isinstance(v, float) and k not in ("time",):
@@ -195,20 +221,40 @@ class Trainer:
 
     def _load(self, ckpt: Path) -> None:
         state = load_checkpoint_state(ckpt, self.raw, self.device)
-        self.opt.load_state_dict(state["optimizer"])
-        if self.ema is not None:
-            self.ema.load_state_dict(state["ema"])
+        where = ckpt / "state.pt"
+        try:
+            self.opt.load_state_dict(state["optimizer"])
+            for group in self.opt.param_groups:  # the optimizer's moments must have the weights' shapes
+                for p in group["params"]:
+                    for k, v in self.opt.state.get(p, {}).items():
+                        if isinstance(v, torch.Tensor) and v.dim() and v.shape != p.shape:
+                            raise ValueError(f"optimizer '{k}' of shape {list(v.shape)} for a weight of shape {list(p.shape)}")
+            if self.ema is not None:
+                shadow = state["ema"].get("shadow", {})
+                for k, v in self.ema.shadow.items():
+                    if not isinstance(shadow.get(k), torch.Tensor) or shadow[k].shape != v.shape:
+                        raise ValueError(f"EMA weight '{k}' is missing or of another shape")
+                self.ema.load_state_dict(state["ema"])
+            torch.set_rng_state(state["torch_rng"].cpu())
+        except (ValueError, KeyError, TypeError, AttributeError, RuntimeError) as e:
+            msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise ValueError(f"{where}: does not fit this run's model and optimizer ({msg})") from None
         self.step, self.epoch = int(state["step"]), int(state["epoch"])
         self.batches_done = int(state["batches_done"])
         self.best_val, self.bad_epochs = float(state["best_val"]), int(state["bad_epochs"])
-        torch.set_rng_state(state["torch_rng"].cpu())
-        # The log may run ahead of the checkpoint after a crash: drop lines past its step.
+        # The log may run ahead of the checkpoint after a crash: drop lines past its step, and a
+        # line torn by a kill.
         log = self.out / "metrics.jsonl"
         if self.is_main and log.exists():
-            keep = [ln for ln in log.read_text().splitlines()
-                    if json.loads(ln).get("step", 0) <= self.step and not (
-                        "val_loss" in json.loads(ln) and json.loads(ln)["epoch"] >= self.epoch)]
-            log.write_text("".join(k + "\n" for k in keep))
+            keep = []
+            for ln in log.read_text().splitlines():
+                try:
+                    d = json.loads(ln)
+                except json.JSONDecodeError:
+                    continue
+                if d.get("step", 0) <= self.step and not ("val_loss" in d and d["epoch"] >= self.epoch):
+                    keep.append(ln)
+            write_text_atomic(log, "".join(k + "\n" for k in keep))
 
     def _check_sync(self) -> None:
         """All ranks hold the same weights; log their checksums, samples seen and any overlap."""
@@ -374,9 +420,11 @@ class _bar:
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
-    trainer = Trainer(cfg, resume=resume, progress=progress)
+    """Train (or resume) the run ``cfg.out``; rank 0 holds the run directory's lock throughout."""
+    lock = locked_dir(cfg.out) if int(os.environ.get("RANK", "0")) == 0 else nullcontext()
     try:
-        return trainer.fit()
+        with lock:
+            return Trainer(cfg, resume=resume, progress=progress).fit()
     finally:
         if dist.is_initialized():
             dist.destroy_process_group()

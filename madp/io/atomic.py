@@ -1,0 +1,68 @@
+"""Atomic file replacement with temporary names unique per writer.
+
+A file is written under ``NAME.<pid>.tmp`` beside its destination, flushed to disk and renamed
+over it, so a reader sees the old file or the whole new one, and two processes (a job and the
+orphaned worker of a killed one) never write the same temporary file. Leftovers of killed writers
+match :data:`TMP_GLOB`; a job removes them while it holds the directory's lock.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+#: Matches (as a glob) every temporary file this module names; :func:`is_temp` is the exact test.
+TMP_GLOB = "*.tmp*"
+_TEMP_NAME = re.compile(r"^.+\.\d+\.tmp(\.[A-Za-z0-9]+)?$")
+
+
+def temp_path(path: str | os.PathLike, ext: str = "") -> Path:
+    """``path``'s temporary sibling for this process: ``NAME.<pid>.tmp`` (plus ``ext``, e.g. ``.npz``
+    for writers that insist on a suffix)."""
+    path = Path(path)
+    return path.with_name(f"{path.name}.{os.getpid()}.tmp{ext}")
+
+
+def is_temp(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is named like a temporary file of :func:`temp_path`."""
+    return _TEMP_NAME.match(Path(path).name) is not None
+
+
+def named(err: OSError, path: str | os.PathLike) -> OSError:
+    """``err`` with ``path`` as its file name when it has none (a failed write of an open file, e.g.
+    a full disk), so its one-line message says which file could not be written."""
+    if err.filename is None and err.errno is not None:
+        return OSError(err.errno, err.strerror or str(err), os.fspath(path))
+    return err
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, fsync: bool = True) -> Path:
+    """Write ``text`` to ``path`` atomically (temporary sibling, fsync, rename); create parents."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_path(path)
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+            f.flush()
+            if fsync:
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise named(e, path) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def remove_temps(root: str | os.PathLike) -> int:
+    """Remove every temporary file under ``root`` (call only while holding its lock). Returns the count."""
+    n = 0
+    for p in Path(root).rglob(TMP_GLOB):
+        if is_temp(p) and p.is_file():
+            p.unlink(missing_ok=True)
+            n += 1
+    return n
