@@ -1,0 +1,67 @@
+"""PettingZoo's and Gymnasium's own checkers on madp.envs, on a small world so they run in seconds."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pettingzoo")
+pytest.importorskip("gymnasium")
+
+from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test, seed_test  # noqa: E402
+
+from madp.envs import coverage_v0  # noqa: E402
+from madp.sim import CoverageEnv, Scenario, SimParams  # noqa: E402
+
+SMALL = SimParams(world_size=128, local_map_size=64, sensor_size=16, num_robots=4, num_features=3,
+                  sigma_range_m=(10.0, 20.0), comm_radius_m=48.0)
+KW = dict(params=SMALL, max_steps=12, render_mode="rgb_array", render_size=64)
+
+
+def test_parallel_api():
+    parallel_api_test(coverage_v0.parallel_env(**KW), num_cycles=30)
+
+
+def test_aec_api():
+    api_test(coverage_v0.env(**KW), num_cycles=30)
+
+
+def test_seeding():
+    parallel_seed_test(lambda: coverage_v0.parallel_env(**KW), num_cycles=20)
+    seed_test(lambda: coverage_v0.env(**KW), num_cycles=20)
+
+
+def test_same_world_as_the_simulator():
+    """Same scenario, same actions: same positions, observations, and rewards summing to 1 − J(T)/J(0)."""
+    scenario = Scenario.random(3, SMALL)
+    pz = coverage_v0.parallel_env(scenario=scenario, max_steps=5)
+    obs, _ = pz.reset(seed=1)
+    sim = CoverageEnv(scenario)
+    rng = np.random.default_rng(0)
+    total = 0.0
+    for _ in range(5):
+        u = rng.uniform(-8, 8, (4, 2))  # beyond u_max: both clip the speed
+        obs, rew, term, trunc, info = pz.step({f"robot_{i}": u[i] for i in range(4)})
+        sim.step(u)
+        total += rew["robot_0"]
+        assert len(set(rew.values())) == 1
+    assert all(trunc.values()) and not any(term.values()) and pz.agents == []
+    np.testing.assert_array_equal(obs["robot_2"]["maps"], sim.observations()[2])
+    np.testing.assert_allclose(obs["robot_1"]["position"], sim.positions_m[1], rtol=1e-6)
+    assert total == pytest.approx(1.0 - sim.normalized_cost(), abs=1e-12)
+    assert info["robot_0"]["normalized_cost"] == pytest.approx(sim.normalized_cost())
+
+
+def test_neighbours_within_comm_radius():
+    p = np.array([[10.0, 10.0], [20.0, 10.0], [100.0, 100.0], [10.0, 40.0]])
+    table, mask = coverage_v0.neighbour_table(p, 31.0)
+    assert mask.tolist() == [[1, 1, 0], [1, 0, 0], [0, 0, 0], [1, 0, 0]]  # |x1 - x3| = 31.6 > r_c
+    np.testing.assert_array_equal(table[0, :2], [[10, 0], [0, 30]])  # nearest first
+    assert not table[2].any()
+
+
+def test_render_frame():
+    pz = coverage_v0.parallel_env(**KW)
+    pz.reset(seed=0)
+    frame = pz.render()
+    assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
+    assert (frame == 0).all(axis=2).any()  # robots drawn
+    assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 3
