@@ -50,6 +50,15 @@ def resolve_scenario(scenario) -> Scenario | None:
     raise TypeError(f"scenario: expected a Scenario, a path or a suite EnvSpec, got {type(scenario).__name__}")
 
 
+def episode_scenario(fixed: Scenario | None, params: SimParams, seed: int | None, rng: np.random.Generator) -> Scenario:
+    """The scenario of the next episode: ``fixed`` if given, else ``Scenario.random(seed)`` (a seed
+    drawn from ``rng`` when ``seed`` is None), so ``reset(seed=s)`` replays madp's scenario of seed s."""
+    if fixed is not None:
+        return fixed
+    draw = int(seed) if seed is not None else int(rng.integers(0, 2**62))
+    return Scenario.random(draw, params)
+
+
 def map_bounds(params: SimParams) -> tuple[np.ndarray, np.ndarray]:
     """Per-channel bounds of the [4, S, S] map tensor: maps in [0, 1]; neighbour channels are sums of
     r / r_c over at most N−1 neighbours, so in [−(N−1), N−1]."""
@@ -125,10 +134,7 @@ class CoverageParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self.np_random, self.np_random_seed = seeding.np_random(seed)
-        scenario = self.scenario
-        if scenario is None:
-            draw = int(seed) if seed is not None else int(self.np_random.integers(0, 2**62))
-            scenario = Scenario.random(draw, self.params)
+        scenario = episode_scenario(self.scenario, self.params, seed, self.np_random)
         if self.sim is None or self.sim.scenario is not scenario:
             self.sim = CoverageEnv(scenario)
         else:

@@ -20,6 +20,7 @@ def test_parallel_api():
     parallel_api_test(coverage_v0.parallel_env(**KW), num_cycles=30)
 
 
+@pytest.mark.filterwarnings("ignore:Observation:UserWarning")  # a Dict observation is this env's design
 def test_aec_api():
     api_test(coverage_v0.env(**KW), num_cycles=30)
 
@@ -65,3 +66,20 @@ def test_render_frame():
     assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
     assert (frame == 0).all(axis=2).any()  # robots drawn
     assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 3
+
+
+def test_gymnasium_checker():
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+
+    import madp.envs  # noqa: F401  (registers madp/Coverage-v0)
+
+    env = gymnasium.make("madp/Coverage-v0", params=SMALL, max_steps=6, render_mode="rgb_array", render_size=64)
+    check_env(env.unwrapped, skip_render_check=False)
+    obs, info = env.reset(seed=5)
+    assert obs["maps"].shape == (4, 4, 32, 32) and obs["positions"].shape == (4, 2)
+    sim = CoverageEnv(Scenario.random(5, SMALL))  # reset(seed=s) replays madp's scenario of seed s
+    np.testing.assert_array_equal(obs["maps"], sim.observations())
+    for t in range(6):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert truncated and not terminated
