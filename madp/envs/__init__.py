@@ -7,6 +7,8 @@
 
 import gymnasium
 
+from madp.controllers import make_controller
+
 from . import coverage_v0
 
 GYM_ID = "madp/Coverage-v0"
@@ -14,4 +16,4 @@ GYM_ID = "madp/Coverage-v0"
 if GYM_ID not in gymnasium.registry:
     gymnasium.register(id=GYM_ID, entry_point="madp.envs.gym_coverage:CoverageGymEnv")
 
-__all__ = ["GYM_ID", "coverage_v0"]
+__all__ = ["GYM_ID", "coverage_v0", "make_controller"]

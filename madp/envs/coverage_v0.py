@@ -19,6 +19,8 @@
   at each reset (seed from ``reset(seed=…)``, else from the env's generator), with ``params``.
 - ``render_mode="rgb_array"``: the map, Voronoi cells and robots (:func:`madp.envs.render.render_frame`).
 - ``infos[agent]["normalized_cost"]`` is J(t)/J(0).
+- Any madp controller drives it: ``env.step(env.actions_from(make_controller("madp")))``
+  (:func:`madp.controllers.make_controller`; the world is ``env.sim``, a :class:`CoverageEnv`).
 """
 
 from __future__ import annotations
@@ -161,6 +163,12 @@ class CoverageParallelEnv(ParallelEnv):
         if self.sim.steps >= self.max_steps:
             self.agents = []
         return obs, rewards, terminations, truncations, infos
+
+    def actions_from(self, controller) -> dict:
+        """The actions of any madp controller (:mod:`madp.controllers`) as this env's action dict
+        (float64, as the controller computed them, so the rollout equals madp's own loop bit for bit)."""
+        u = controller(self.sim)
+        return {a: u[i] for i, a in enumerate(self.possible_agents) if a in self.agents}
 
     # --- views ---------------------------------------------------------------------------------
     def _observations(self) -> dict:

@@ -65,6 +65,10 @@ class CoverageGymEnv(gym.Env):
         self._cost = cost
         return self._observation(), reward, False, self.sim.steps >= self.max_steps, self._info()
 
+    def action_from(self, controller) -> np.ndarray:
+        """The action [N, 2] of any madp controller (:mod:`madp.controllers`) in the current state."""
+        return np.asarray(controller(self.sim), dtype=np.float64)  # float64: the simulator's precision
+
     def _observation(self) -> dict:
         return {"positions": self.sim.positions_m.astype(np.float32), "maps": self.sim.observations()}
 

@@ -83,3 +83,28 @@ def test_gymnasium_checker():
     for t in range(6):
         obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     assert truncated and not terminated
+
+
+@pytest.mark.parametrize("name", ["dcvt", "madp"])
+def test_env_driven_by_a_controller_matches_madp_eval(name):
+    """The PettingZoo env driven by a controller gives the J(t)/J(0) of madp eval's own loop, bit for bit."""
+    from madp.controllers import make_controller
+    from madp.eval.runner import EvalConfig
+    from madp.eval.runner import make_controller as eval_controller
+    from madp.eval.suites import EnvSpec
+    from madp.policies import shipped_checkpoint
+    from madp.sim import rollout
+
+    if name == "madp" and shipped_checkpoint("madp") is None:
+        pytest.skip("no shipped MADP checkpoint in this install")
+    spec, steps = EnvSpec("uniform", "uniform", 0, SMALL), 3
+    reference = rollout(CoverageEnv(spec.scenario()),
+                        eval_controller(name, EvalConfig(suite="uniform", madp=str(shipped_checkpoint("madp"))), spec), steps)
+    pz = coverage_v0.parallel_env(scenario=spec, max_steps=steps)
+    pz.reset(seed=0)
+    policy = make_controller(name, seed=spec.seed)
+    costs = [1.0]
+    while pz.agents:
+        _, _, _, _, infos = pz.step(pz.actions_from(policy))
+        costs.append(infos["robot_0"]["normalized_cost"])
+    np.testing.assert_array_equal(costs, reference.normalized_cost)
