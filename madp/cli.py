@@ -55,17 +55,25 @@ def _write_json(path: Path, obj: object) -> None:
 @app.command()
 def rollout(
     scenario: Path = typer.Option(..., "--scenario", help="Scenario JSON (features, robots, optional params)."),
-    controller: str = typer.Option("clairvoyant", help="clairvoyant | dcvt"),
+    controller: str = typer.Option("clairvoyant", help="clairvoyant | dcvt | lpac | madp | madp_central"),
+    checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint of a learned controller (default: the shipped one)."),
+    seed: Optional[int] = typer.Option(None, help="MADP's sampling-noise seed (default: the scenario's seed, else 0, as madp eval)."),
     steps: int = typer.Option(600, min=0, help="Control steps to run."),
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
-    from madp.sim import Scenario, rollout_scenario
+    from madp.controllers import NAMES, make_controller
+    from madp.sim import CoverageEnv, Scenario
+    from madp.sim import rollout as run
 
-    if controller not in ("clairvoyant", "dcvt"):
-        raise UserError(f"--controller: expected clairvoyant or dcvt, got {controller!r}")
+    if controller not in NAMES:
+        raise UserError(f"--controller: expected one of {', '.join(NAMES)}, got {controller!r}")
+    if checkpoint is not None and controller in ("clairvoyant", "dcvt"):
+        raise UserError(f"--checkpoint: the {controller} controller takes no checkpoint")
     sc = Scenario.load(scenario)
-    result = rollout_scenario(sc, controller, steps)
+    noise_seed = seed if seed is not None else (sc.seed if sc.seed is not None else 0)
+    ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed)
+    result = run(CoverageEnv(sc), ctrl, steps)
     _write_json(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
                f" (converged at {result.converged_at}) -> {out}")

@@ -25,7 +25,8 @@ def test_rollout_writes_cost_and_positions(tmp_path):
 
 @pytest.mark.parametrize("args,needle", [
     (["rollout", "--scenario", "/nonexistent.json"], "/nonexistent.json"),
-    (["rollout", "--scenario", "{sc}", "--controller", "lpac"], "--controller"),
+    (["rollout", "--scenario", "{sc}", "--controller", "lqr"], "--controller"),
+    (["rollout", "--scenario", "{sc}", "--controller", "dcvt", "--checkpoint", "x.safetensors"], "--checkpoint"),
 ])
 def test_user_errors_are_one_line(tmp_path, args, needle):
     sc = tmp_path / "s.json"
@@ -34,3 +35,22 @@ def test_user_errors_are_one_line(tmp_path, args, needle):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("controller", ["madp", "lpac"])
+def test_rollout_with_a_learned_controller(tmp_path, controller):
+    """``madp rollout --controller madp|lpac`` on a scenario file, with the shipped checkpoint."""
+    from madp.policies import shipped_checkpoint
+
+    if shipped_checkpoint(controller) is None:
+        pytest.skip(f"no shipped {controller} checkpoint in this install")
+    sc = tmp_path / "s.json"
+    sc.write_text(json.dumps({"features": [{"mean": [60, 70], "sigma": 15, "peak": 0.8}],
+                              "robots": [[10, 10], [100, 100], [50, 20]],
+                              "params": {"world_size": 128, "local_map_size": 64, "sensor_size": 16}}))
+    out = tmp_path / "r.json"
+    r = madp("rollout", "--scenario", str(sc), "--controller", controller, "--steps", "2", "--out", str(out),
+             "--checkpoint", str(shipped_checkpoint(controller)))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    assert res["controller"] == controller and len(res["cost"]) == 3 and res["cost"][-1] != 1.0  # the robots moved

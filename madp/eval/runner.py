@@ -31,15 +31,14 @@ from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
 from madp.io.workers import die_with_parent
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
-from madp.sim import ClairvoyantCVT, CoverageEnv, DecentralizedCVT
+from madp.controllers import CLASSICAL, LEARNED
+from madp.sim import CoverageEnv
 
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"fixed_noise": False}
 
-CLASSICAL = ("clairvoyant", "dcvt")
-LEARNED = ("lpac", "madp", "madp_central")
 ORDER = CLASSICAL + LEARNED
 
 
@@ -63,30 +62,13 @@ class EvalConfig:
     record_samples: int = 4
 
 
-_models: dict = {}
-
-
-def _load_model(kind: str, path: str):
-    from madp.policies import load
-
-    key = (kind, path)
-    if key not in _models:
-        _models[key] = load(path, kind)[0]
-    return _models[key]
-
-
 def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
-    if name == "clairvoyant":
-        return ClairvoyantCVT()
-    if name == "dcvt":
-        return DecentralizedCVT()
-    from madp.policies import LPACPolicy, MADPPolicy
+    """Controller ``name`` as this suite runs it (:func:`madp.controllers.make_controller`), MADP's
+    noise seeded by the environment's seed."""
+    from madp.controllers import make_controller as build
 
-    if name == "lpac":
-        return LPACPolicy(_load_model("lpac", cfg.lpac))
-    mode = "decentralized" if name == "madp" else "centralized"
-    return MADPPolicy(_load_model("madp", cfg.madp), mode, cfg.sampling_steps, cfg.eta, seed=spec.seed,
-                      sampler=cfg.sampler, fixed_noise=cfg.fixed_noise)
+    return build(name, cfg.lpac if name == "lpac" else cfg.madp, seed=spec.seed, sampler=cfg.sampler,
+                 sampling_steps=cfg.sampling_steps, eta=cfg.eta, fixed_noise=cfg.fixed_noise)
 
 
 def sampling_settings(cfg: EvalConfig, controller: str) -> dict:

@@ -1,0 +1,210 @@
+"""``coverage_v0``: madp's coverage world as a PettingZoo environment, one agent per robot.
+
+    from madp.envs import coverage_v0
+    env = coverage_v0.parallel_env(seed=0)          # or scenario=Scenario / "file.json" / suite EnvSpec
+    obs, infos = env.reset(seed=0)
+
+- **Agents** ``robot_0 … robot_{N-1}``, all live for the whole episode.
+- **Observation** (``Dict``), what a decentralized robot knows, the same as madp's learned policies see:
+  ``maps`` [4, 32, 32] float32 (local map, neighbours' x, neighbours' y, boundary; see
+  :mod:`madp.sim.observations`); ``position`` [2] (m); ``neighbours`` [N-1, 2] relative positions
+  x_j − x_i (m) of the robots within r_c, nearest first, zero-padded; ``neighbour_mask`` [N-1]
+  (1 where a row is a real neighbour).
+- **Action** velocity ``Box(-u_max, u_max, (2,))`` m/s (u_max = 5 by default); the simulator clips the
+  speed |u| to u_max, as for every madp controller. A live agent missing from the action dict stands still.
+- **Reward** shared by all robots: the decrease of normalised coverage cost, (J(t−1) − J(t)) / J(0). It is
+  dense, scale-free across maps, and sums over an episode to 1 − J(T)/J(0), madp's headline metric.
+- **Termination** never; **truncation** of every agent after ``max_steps`` (default 600) steps.
+- **Scenario**: the given one at every reset, or, when none is given, ``Scenario.random(seed)`` drawn
+  at each reset (seed from ``reset(seed=…)``, else from the env's generator), with ``params``.
+- ``render_mode="rgb_array"``: the map, Voronoi cells and robots (:func:`madp.envs.render.render_frame`).
+- ``infos[agent]["normalized_cost"]`` is J(t)/J(0).
+- Any madp controller drives it: ``env.step(env.actions_from(make_controller("madp")))``
+  (:func:`madp.controllers.make_controller`; the world is ``env.sim``, a :class:`CoverageEnv`).
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from pettingzoo import ParallelEnv
+from pettingzoo.utils import parallel_to_aec
+
+from madp.sim import CoverageEnv, Scenario, SimParams
+
+from .render import render_frame
+
+DEFAULT_MAX_STEPS = 600
+
+
+def resolve_scenario(scenario) -> Scenario | None:
+    """A :class:`Scenario`, a scenario file path, or anything with ``.scenario()`` (a suite EnvSpec)."""
+    if scenario is None or isinstance(scenario, Scenario):
+        return scenario
+    if isinstance(scenario, (str, Path)):
+        return Scenario.load(scenario)
+    if hasattr(scenario, "scenario"):
+        return scenario.scenario()
+    raise TypeError(f"scenario: expected a Scenario, a path or a suite EnvSpec, got {type(scenario).__name__}")
+
+
+def episode_scenario(fixed: Scenario | None, params: SimParams, seed: int | None, rng: np.random.Generator) -> Scenario:
+    """The scenario of the next episode: ``fixed`` if given, else ``Scenario.random(seed)`` (a seed
+    drawn from ``rng`` when ``seed`` is None), so ``reset(seed=s)`` replays madp's scenario of seed s."""
+    if fixed is not None:
+        return fixed
+    draw = int(seed) if seed is not None else int(rng.integers(0, 2**62))
+    return Scenario.random(draw, params)
+
+
+def map_bounds(params: SimParams) -> tuple[np.ndarray, np.ndarray]:
+    """Per-channel bounds of the [4, S, S] map tensor: maps in [0, 1]; neighbour channels are sums of
+    r / r_c over at most N−1 neighbours, so in [−(N−1), N−1]."""
+    s, k = params.obs_size, max(params.num_robots - 1, 1)
+    low = np.zeros((4, s, s), dtype=np.float32)
+    high = np.ones((4, s, s), dtype=np.float32)
+    low[1:3], high[1:3] = -k, k
+    return low, high
+
+
+def agent_observation_space(params: SimParams) -> spaces.Dict:
+    k, rc, w = max(params.num_robots - 1, 1), float(params.comm_radius_m), float(params.world_size)
+    low, high = map_bounds(params)
+    return spaces.Dict({
+        "maps": spaces.Box(low, high, dtype=np.float32),
+        "position": spaces.Box(0.0, w, (2,), dtype=np.float32),
+        "neighbours": spaces.Box(-rc, rc, (k, 2), dtype=np.float32),
+        "neighbour_mask": spaces.MultiBinary(k),
+    })
+
+
+def neighbour_table(positions_m: np.ndarray, comm_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Padded relative positions [N, K, 2] (nearest first) and mask [N, K] int8, K = max(N−1, 1)."""
+    n = len(positions_m)
+    k = max(n - 1, 1)
+    rel = positions_m[None, :, :] - positions_m[:, None, :]  # [i, j, 2] = x_j - x_i
+    dist = np.linalg.norm(rel, axis=2)
+    near = (dist < comm_radius_m) & ~np.eye(n, dtype=bool)
+    key = np.where(near, dist, np.inf)
+    key[np.arange(n), np.arange(n)] = np.inf
+    order = np.argsort(key, axis=1, kind="stable")[:, :k]  # neighbours first, nearest first
+    mask = np.take_along_axis(near, order, axis=1)
+    table = np.take_along_axis(rel, order[:, :, None], axis=1) * mask[:, :, None]
+    if n == 1:
+        table, mask = np.zeros((1, 1, 2)), np.zeros((1, 1), dtype=bool)
+    bound = np.float32(comm_radius_m)
+    return np.clip(table.astype(np.float32), -bound, bound), mask.astype(np.int8)
+
+
+class CoverageParallelEnv(ParallelEnv):
+    """PettingZoo parallel coverage environment (see the module docstring)."""
+
+    metadata = {"name": "coverage_v0", "render_modes": ["rgb_array"], "render_fps": 5, "is_parallelizable": True}
+
+    def __init__(self, scenario=None, params: SimParams | None = None, max_steps: int = DEFAULT_MAX_STEPS,
+                 render_mode: str | None = None, render_size: int = 512, seed: int | None = None):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        self.scenario = resolve_scenario(scenario)
+        self.params = self.scenario.params if self.scenario is not None else (params or SimParams())
+        self.max_steps, self.render_mode, self.render_size = int(max_steps), render_mode, int(render_size)
+        n = self.params.num_robots if self.scenario is None else len(self.scenario.robots_m)
+        self.possible_agents = [f"robot_{i}" for i in range(n)]
+        self.agents: list[str] = []
+        self.sim: CoverageEnv | None = None
+        self.np_random, self.np_random_seed = seeding.np_random(seed)
+        self._obs_space = agent_observation_space(self.params)
+        u = float(self.params.max_speed_mps)
+        self._act_space = spaces.Box(-u, u, (2,), dtype=np.float32)
+
+    # spaces are the same objects at every call, so seeding them (as PettingZoo's tests do) sticks
+    @functools.lru_cache(maxsize=None)
+    def observation_space(self, agent: str) -> spaces.Dict:
+        return self._obs_space
+
+    @functools.lru_cache(maxsize=None)
+    def action_space(self, agent: str) -> spaces.Box:
+        return self._act_space
+
+    # --- episode -------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self.np_random, self.np_random_seed = seeding.np_random(seed)
+        scenario = episode_scenario(self.scenario, self.params, seed, self.np_random)
+        if self.sim is None or self.sim.scenario is not scenario:
+            self.sim = CoverageEnv(scenario)
+        else:
+            self.sim.reset()
+        self.agents = list(self.possible_agents)
+        self._cost = self.sim.cost()
+        return self._observations(), self._infos()
+
+    def step(self, actions: dict):
+        if not self.agents:
+            raise RuntimeError("step() called on a finished episode; call reset()")
+        u = np.zeros((len(self.possible_agents), 2))
+        for i, agent in enumerate(self.possible_agents):
+            if actions.get(agent) is not None:
+                u[i] = np.asarray(actions[agent], dtype=np.float64).reshape(2)
+        self.sim.step(u)
+        cost = self.sim.cost()
+        reward = float((self._cost - cost) / self.sim.cost0)
+        self._cost = cost
+        obs, infos = self._observations(), self._infos()
+        rewards = dict.fromkeys(self.agents, reward)
+        terminations = dict.fromkeys(self.agents, False)
+        truncations = dict.fromkeys(self.agents, self.sim.steps >= self.max_steps)
+        if self.sim.steps >= self.max_steps:
+            self.agents = []
+        return obs, rewards, terminations, truncations, infos
+
+    def actions_from(self, controller) -> dict:
+        """The actions of any madp controller (:mod:`madp.controllers`) as this env's action dict
+        (float64, as the controller computed them, so the rollout equals madp's own loop bit for bit)."""
+        u = controller(self.sim)
+        return {a: u[i] for i, a in enumerate(self.possible_agents) if a in self.agents}
+
+    # --- views ---------------------------------------------------------------------------------
+    def _observations(self) -> dict:
+        maps = self.sim.observations()
+        table, mask = neighbour_table(self.sim.positions_m, self.params.comm_radius_m)
+        pos = self.sim.positions_m.astype(np.float32)
+        return {a: {"maps": maps[i], "position": pos[i], "neighbours": table[i], "neighbour_mask": mask[i]}
+                for i, a in enumerate(self.possible_agents)}
+
+    def _infos(self) -> dict:
+        info = {"normalized_cost": float(self._cost / self.sim.cost0), "step": int(self.sim.steps)}
+        return {a: dict(info) for a in self.possible_agents}
+
+    def state(self) -> np.ndarray:
+        """Global state: positions [N, 2] (m)."""
+        return self.sim.positions_m.copy()
+
+    def render(self):
+        if self.render_mode is None or self.sim is None:
+            return None
+        return render_frame(self.sim.world_map, self.sim.positions_m, self.render_size)
+
+    def close(self) -> None:
+        pass
+
+
+def parallel_env(**kwargs) -> CoverageParallelEnv:
+    """The parallel form (see :class:`CoverageParallelEnv` for the arguments)."""
+    return CoverageParallelEnv(**kwargs)
+
+
+def raw_env(**kwargs):
+    """The AEC form without PettingZoo's order-enforcing wrapper (as PettingZoo's environments name it)."""
+    return parallel_to_aec(parallel_env(**kwargs)).env
+
+
+def env(**kwargs):
+    """The AEC form (agents act in turn; the world steps once all have acted)."""
+    return parallel_to_aec(parallel_env(**kwargs))
