@@ -1,17 +1,22 @@
 #!/usr/bin/env bash
-# The exact commands that produced the checkpoints shipped in madp/checkpoints/ (see provenance.json there).
+# The exact commands that produced the checkpoints shipped in madp/checkpoints/ (record: provenance.json there).
 # Run from the repository root after `bash scripts/quickstart.sh` (or any install into .venv).
+# Round 0 trains on the expert data; scripts/train_dagger.sh then runs the expert-relabelling rounds
+# (MADP: 2, LPAC-K3: 1), and the last round of each is shipped. About 4 h on 2 cores end to end.
 # Results do not depend on running the two trainings side by side or one after the other.
 set -euo pipefail
 DATA=${DATA:-/work/data100k}
 [ -f "$DATA/manifest.json" ] || .venv/bin/madp datagen --n 100000 --seed 0 --out "$DATA" --workers 2   # ~30 min
-# MADP: 24 x 1000 steps x 32 samples (768k samples, ~11 passes over the 70k training split), ~100 min on one thread.
-.venv/bin/madp train --model madp --preset cpu --data "$DATA" --out runs/madp-cpu --threads 1 \
-  --epochs 24 --max-steps-per-epoch 1000 &
-# LPAC-K3: 6 x 1000 steps (192k samples), ~30 min on one thread.
-.venv/bin/madp train --model lpac --preset cpu --data "$DATA" --out runs/lpac-cpu2 --threads 1 \
-  --epochs 6 --max-steps-per-epoch 1000 &
+# Round 0, MADP: 24 x 1000 steps x 32 samples (768k samples, ~11 passes over the 70k training split), ~100 min on one thread.
+[ -f runs/madp-cpu/checkpoints/best/policy.safetensors ] || .venv/bin/madp train --model madp --preset cpu --data "$DATA" \
+  --out runs/madp-cpu --threads 1 --epochs 24 --max-steps-per-epoch 1000 &
+# Round 0, LPAC-K3: 6 x 1000 steps (192k samples), ~21 min on one thread.
+[ -f runs/lpac-r0/checkpoints/best/policy.safetensors ] || .venv/bin/madp train --model lpac --preset cpu --data "$DATA" \
+  --out runs/lpac-r0 --threads 1 --epochs 6 --max-steps-per-epoch 1000 &
 wait
+DATA=$DATA MADP0=runs/madp-cpu/checkpoints/best/policy.safetensors LPAC0=runs/lpac-r0/checkpoints/best/policy.safetensors \
+  MADP_ROUNDS=2 LPAC_ROUNDS=1 bash scripts/train_dagger.sh
 mkdir -p madp/checkpoints
-cp runs/madp-cpu/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
-cp runs/lpac-cpu2/checkpoints/best/policy.safetensors madp/checkpoints/lpac-cpu.safetensors
+cp runs/madp-r2/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
+cp runs/lpac-r1/checkpoints/best/policy.safetensors madp/checkpoints/lpac-cpu.safetensors
+.venv/bin/python scripts/provenance.py runs/madp-r2 runs/lpac-r1
