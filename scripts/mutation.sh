@@ -43,6 +43,23 @@ for p in madp tests pyproject.toml; do
 done
 find "$WORK" -name __pycache__ -prune -exec rm -rf {} +
 
+if [[ "${MUTATION_RETEST:-0}" == 1 && -d "$WORK/mutants" ]]; then
+    # mutmut keeps a verdict until the mutated function changes; new tests do not reset it
+    "$PY" - "$WORK/mutants" <<'EOF'
+import json, pathlib, sys
+reset = 0
+for meta in pathlib.Path(sys.argv[1]).rglob("*.meta"):
+    m = json.loads(meta.read_text())
+    codes = m["exit_code_by_key"]
+    for key, code in codes.items():
+        if code in (0, 33):  # survived, no tests
+            codes[key] = None
+            reset += 1
+    meta.write_text(json.dumps(m, indent=4))
+print(f"re-testing {reset} mutants that survived or had no tests")
+EOF
+fi
+
 # Overrides for a partial run: rewrite [tool.mutmut] of the scratch copy only.
 MUTATION_ONLY="${MUTATION_ONLY:-}" MUTATION_TESTS="${MUTATION_TESTS:-}" "$PY" - "$WORK/pyproject.toml" <<'EOF'
 import json, os, re, sys, tomllib

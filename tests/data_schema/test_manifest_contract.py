@@ -1,0 +1,284 @@
+"""The manifest's validation contract, message for message (issue 17, mutation survivors).
+
+Every refusal of :mod:`madp.data_schema.manifest` is a one-line ``"<file or field>: <what was
+expected>"`` that the CLI prints as is, so each case below pins the *whole* message: a mutant that
+drops or changes the field name, the expectation, or the condition that raises fails here. The
+accumulator cases pin the arithmetic that the float64 reference test cannot see (an off-by-one in
+an exact integer sum vanishes in rounding everywhere except at a variance of exactly zero).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+
+import numpy as np
+import pytest
+
+from madp.data_schema import ActionStatsAccumulator, DataError, Manifest, ShardInfo, SplitInfo
+from madp.data_schema.manifest import ActionStats, _exact_scaled_sums, _req, sha256_file
+
+_HEX = "0123456789abcdef" * 4
+
+
+def _message(fn, *args, **kwargs) -> str:
+    with pytest.raises(DataError) as exc:
+        fn(*args, **kwargs)
+    return str(exc.value)
+
+
+def _shard(**changes) -> dict:
+    d = {"bytes": 10, "file": "train/shard-00000.mcap", "num_episodes": 1, "num_samples": 3, "sha256": _HEX}
+    d.update(changes)
+    return d
+
+
+def _manifest_dict() -> dict:
+    return {
+        "action_stats": {"count": 6, "mean": [0.5, -0.5], "std": [1.0, 2.0]},
+        "code_version": "0.1.0",
+        "created_by": "madp datagen --n 3",
+        "format": "mcap",
+        "num_robots": 2,
+        "params": {"sigma": [40, 60]},
+        "schema_version": 1,
+        "splits": {"train": {"num_episodes": 1, "num_samples": 3, "shards": [_shard()]}},
+    }
+
+
+# ---------------------------------------------------------------- sha256_file
+
+
+def test_sha256_file_reads_in_chunks_and_names_unreadable_files(tmp_path):
+    """Guards: the digest of a file larger than one chunk, and the path and OS reason in the error
+    (mutants: ``DataError.at(None, …)``, ``e.strerror and e``, dropped message)."""
+    f = tmp_path / "blob.bin"
+    data = bytes(range(256)) * 5
+    f.write_bytes(data)
+    import hashlib
+
+    assert sha256_file(f, chunk_bytes=7) == hashlib.sha256(data).hexdigest()
+    assert _message(sha256_file, tmp_path) == f"{tmp_path}: cannot read file (Is a directory)"
+
+
+# ---------------------------------------------------------------- action statistics
+
+
+def test_constant_actions_have_exactly_zero_std():
+    """Guards the exact integer sums: any non-zero start of the sums of squares (``total_sq = 1``,
+    ``_sum_sq = [1, 1]``) leaves a variance of ~2**-344 instead of 0, so std is no longer 0.0."""
+    u = np.full((7, 2), 1.5, np.float32)
+    stats = ActionStatsAccumulator().add(u).result()
+    assert stats.std == (0.0, 0.0) and stats.mean == (1.5, 1.5) and stats.count == 7
+
+
+def test_exact_sums_round_their_input_to_float32():
+    """Guards ``dtype=np.float32``: the sums are of float32 values even when given float64."""
+    s, s2 = _exact_scaled_sums(np.array([0.1, 0.1]))
+    x = float(np.float32(0.1))
+    assert s == int(2 * x * 2**172) and s2 == int(2 * x * x * 2 ** (2 * 172))
+
+
+def test_repeated_adds_accumulate():
+    """Guards ``+=`` in :meth:`ActionStatsAccumulator.add` (mutants assign the last batch only)."""
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(5, 2)).astype(np.float32), rng.normal(2, 3, size=(9, 2)).astype(np.float32)
+    two = ActionStatsAccumulator().add(a).add(b).result()
+    assert two == ActionStatsAccumulator().add(np.concatenate([a, b])).result()
+    assert two.count == 14
+
+
+@pytest.mark.parametrize(
+    "actions, message",
+    [
+        (np.zeros((3, 2)), "actions: expected a float32 array [..., 2], got float64 [3, 2]"),
+        (np.zeros((3, 3), np.float32), "actions: expected a float32 array [..., 2], got float32 [3, 3]"),
+        ([[0.0, 1.0]], "actions: expected a float32 array [..., 2], got list"),
+        (np.array([[0.0, np.inf]], np.float32), "actions: expected finite values, found NaN/inf"),
+    ],
+)
+def test_accumulator_refusals(actions, message):
+    assert _message(ActionStatsAccumulator().add, actions) == message
+
+
+def test_accumulator_state_round_trip_and_refusals():
+    """An empty accumulator's state is valid (count 0); malformed states name what was expected."""
+    empty = ActionStatsAccumulator.from_state(ActionStatsAccumulator().state())
+    assert empty.count == 0
+    assert _message(empty.result) == "action_stats: no actions accumulated (is the train split empty?)"
+    good = ActionStatsAccumulator().add(np.ones((2, 2), np.float32)).state()
+    assert ActionStatsAccumulator.from_state(good).result().count == 2
+    assert _message(ActionStatsAccumulator.from_state, {"count": 1, "sum": ["0", "0"]}) == (
+        "action stats state: expected count, sum, sum_sq ('sum_sq')"
+    )
+    bad_axes = "action stats state: expected 2 axes and a non-negative count"
+    for state in (
+        {**good, "sum": ["0", "0", "0"]},
+        {**good, "sum_sq": ["0"]},
+        {**good, "count": -1},
+    ):
+        assert _message(ActionStatsAccumulator.from_state, state) == bad_axes
+
+
+@pytest.mark.parametrize(
+    "d, message",
+    [
+        ([1, 2], "expected an object with keys count, mean, std"),
+        ({"count": 1, "mean": [0, 0]}, "expected an object with keys count, mean, std"),
+        ({"count": 1, "mean": [0, 0], "std": [1.0]}, ".std: expected a list of 2 finite numbers"),
+        ({"count": 1, "mean": [0, float("nan")], "std": [1, 1]}, ".mean: expected a list of 2 finite numbers"),
+        ({"count": 1, "mean": [0, 0], "std": [1, -0.5]}, ".std: expected non-negative values"),
+        ({"count": 0, "mean": [0, 0], "std": [1, 1]}, ".count: expected a positive integer"),
+        ({"count": True, "mean": [0, 0], "std": [1, 1]}, ".count: expected a positive integer"),
+        ({"count": 2.0, "mean": [0, 0], "std": [1, 1]}, ".count: expected a positive integer"),
+    ],
+)
+def test_action_stats_refusals(d, message):
+    got = _message(ActionStats.from_dict, d, "m.json: action_stats")
+    sep = ": " if not message.startswith(".") else ""
+    assert got == f"m.json: action_stats{sep}{message}"
+
+
+def test_action_stats_accepts_zero_std_and_count_one():
+    """Boundaries: std 0 (degenerate data) and a count of 1 are valid."""
+    s = ActionStats.from_dict({"count": 1, "mean": [0, 0], "std": [0.0, 0.25]})
+    assert s == ActionStats(mean=(0.0, 0.0), std=(0.0, 0.25), count=1)
+
+
+# ---------------------------------------------------------------- shards and splits
+
+
+def test_req_messages():
+    assert _message(_req, {}, "k", int, "w") == "w: missing key 'k'"
+    assert _message(_req, {"k": True}, "k", int, "w") == "w.k: expected int, got bool"
+    assert _message(_req, {"k": "x"}, "k", (int, float), "w") == "w.k: expected int/float, got str"
+    assert _req({"k": True}, "k", bool, "w") is True
+
+
+@pytest.mark.parametrize(
+    "d, message",
+    [
+        ("x", "s: expected an object"),
+        (_shard(extra=1), "s: unexpected keys ['extra']"),
+        (_shard(num_samples=-1), "s: expected non-negative counts and size"),
+        (_shard(num_episodes=-1), "s: expected non-negative counts and size"),
+        (_shard(bytes=-1), "s: expected non-negative counts and size"),
+        (_shard(sha256=_HEX[:-1]), "s.sha256: expected 64 lowercase hex digits"),
+        (_shard(sha256=_HEX[:-1] + "g"), "s.sha256: expected 64 lowercase hex digits"),
+        (_shard(sha256=_HEX.upper()), "s.sha256: expected 64 lowercase hex digits"),
+        (_shard(file=""), "s.file: expected a relative '/'-separated path inside the dataset, got ''"),
+        (_shard(file="/abs.mcap"), "s.file: expected a relative '/'-separated path inside the dataset, got '/abs.mcap'"),
+        (_shard(file="a\\b.mcap"), "s.file: expected a relative '/'-separated path inside the dataset, got 'a\\\\b.mcap'"),
+        (_shard(file="a/../b.mcap"), "s.file: expected a relative '/'-separated path inside the dataset, got 'a/../b.mcap'"),
+    ],
+)
+def test_shard_refusals(d, message):
+    assert _message(ShardInfo.from_dict, d, "s") == message
+
+
+def test_shard_boundaries_accepted():
+    """An empty shard (0 samples, 0 episodes, 0 bytes) and a name with dots are valid."""
+    info = ShardInfo.from_dict(_shard(num_samples=0, num_episodes=0, bytes=0, file="x/a..b.mcap"), "s")
+    assert (info.num_samples, info.num_episodes, info.bytes, info.file) == (0, 0, 0, "x/a..b.mcap")
+
+
+@pytest.mark.parametrize(
+    "d, message",
+    [
+        ([], "sp: expected an object"),
+        ({"shards": [], "num_samples": 0, "num_episodes": 0, "x": 1}, "sp: unexpected keys ['x']"),
+        ({"shards": [_shard()], "num_samples": 4, "num_episodes": 1}, "sp.num_samples: is 4, expected 3 (sum over its shards)"),
+        ({"shards": [_shard()], "num_samples": 3, "num_episodes": 2}, "sp.num_episodes: is 2, expected 1 (sum over its shards)"),
+        ({"shards": [_shard(), "x"], "num_samples": 3, "num_episodes": 1}, "sp.shards[1]: expected an object"),
+    ],
+)
+def test_split_refusals(d, message):
+    assert _message(SplitInfo.from_dict, d, "sp") == message
+
+
+# ---------------------------------------------------------------- the manifest
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"format": "hdf5", "num_robots": 2}, "manifest.format: expected one of ['mcap', 'parquet'], got 'hdf5'"),
+        ({"format": "mcap", "num_robots": 0}, "manifest.num_robots: expected a positive integer, got 0"),
+        ({"format": "mcap", "num_robots": True}, "manifest.num_robots: expected a positive integer, got True"),
+        ({"format": "mcap", "num_robots": 2.0}, "manifest.num_robots: expected a positive integer, got 2.0"),
+    ],
+)
+def test_manifest_constructor_refusals(kwargs, message):
+    assert _message(Manifest, **kwargs) == message
+
+
+def test_manifest_one_robot_and_no_stats():
+    m = Manifest(format="parquet", num_robots=1)
+    d = m.to_dict()
+    assert d["num_robots"] == 1 and d["action_stats"] is None and d["format"] == "parquet"
+    assert _message(m.shard_paths, "dev", "/r") == "manifest.splits: no split named 'dev' (have ['test', 'train', 'val'])"
+    m.params["bad"] = float("nan")
+    assert _message(m.to_json) == "manifest.params: expected JSON-serialisable finite values (Out of range float values are not JSON compliant: nan)"
+
+
+def _edit(fn):
+    d = copy.deepcopy(_manifest_dict())
+    fn(d)
+    return d
+
+
+@pytest.mark.parametrize(
+    "d, message",
+    [
+        ([], "m.json: expected a JSON object"),
+        (_edit(lambda d: d.pop("schema_version")), "m.json: schema_version is None, expected 1"),
+        (_edit(lambda d: d.update(junk=0)), "m.json: unexpected keys ['junk']"),
+        (_edit(lambda d: d.update(format="hdf5")), "m.json: format: expected one of ['mcap', 'parquet'], got 'hdf5'"),
+        (_edit(lambda d: d.update(num_robots=0)), "m.json: num_robots: expected a positive integer, got 0"),
+        (_edit(lambda d: d.update(num_robots=True)), "m.json.num_robots: expected int, got bool"),
+        (_edit(lambda d: d["params"].update(x=float("inf"))), "m.json: params: expected finite JSON values"),
+        (_edit(lambda d: d["splits"]["train"].update(num_samples=2)), "m.json: splits.train.num_samples: is 2, expected 3 (sum over its shards)"),
+        (_edit(lambda d: d["action_stats"].update(count=0)), "m.json: action_stats.count: expected a positive integer"),
+        (_edit(lambda d: d.pop("created_by")), "m.json: missing key 'created_by'"),
+    ],
+)
+def test_manifest_refusals(d, message):
+    assert _message(Manifest.from_dict, d, "m.json") == message
+
+
+def test_manifest_load_names_the_file(tmp_path):
+    path = tmp_path / "manifest.json"
+    assert Manifest.load(_write(path, _manifest_dict())).num_robots == 2
+    assert Manifest.load(tmp_path).counts() == {"train": 3}  # a directory means its manifest.json
+    path.write_bytes(b'{"a": "\xff"}')
+    assert _message(Manifest.load, path) == f"{path}: not UTF-8 text (byte 7); expected a JSON manifest"
+    missing = tmp_path / "nowhere" / "manifest.json"
+    assert _message(Manifest.load, missing) == f"{missing}: cannot read manifest (No such file or directory)"
+
+
+def _write(path, d) -> str:
+    path.write_text(json.dumps(d))
+    return os.fspath(path)
+
+
+def test_verify_shards_messages(tmp_path):
+    """Each shard problem names the shard's path (mutants: ``DataError.at(None, …)``)."""
+    body = b"0123456789"
+    import hashlib
+
+    d = _manifest_dict()
+    d["splits"]["train"]["shards"][0]["sha256"] = hashlib.sha256(body).hexdigest()
+    m = Manifest.from_dict(d)
+    shard = tmp_path / "train" / "shard-00000.mcap"
+    assert _message(m.verify_shards, tmp_path) == f"{shard}: shard of split 'train' is missing"
+    shard.parent.mkdir()
+    shard.write_bytes(body[:-1])
+    assert _message(m.verify_shards, tmp_path) == f"{shard}: size is 9 bytes, expected 10 (manifest)"
+    shard.write_bytes(body[::-1])
+    assert _message(m.verify_shards, tmp_path) == (
+        f"{shard}: sha256 is {hashlib.sha256(body[::-1]).hexdigest()}, expected {hashlib.sha256(body).hexdigest()} (manifest)"
+    )
+    m.verify_shards(tmp_path, check_sha256=False)
+    shard.write_bytes(body)
+    m.verify_shards(tmp_path)

@@ -1,0 +1,159 @@
+"""MADP's pieces against expectations computed without the code under test, and its wiring pinned
+(issue 17: the mutation campaign found the sinusoidal embedding, the loss, the initialisation, the
+packing of neighbourhoods and the model's wiring — RoPE, time embedding, padding — unchecked).
+
+The last test is a characterization test: a tiny model, seeded, evaluated on fixed inputs, compared
+with numbers stored in ``data/madp_golden.safetensors``. It fails on any change of the function the
+model computes (a dropped RoPE, a flipped time-embedding sign, a lost padding mask, a changed init).
+Regenerate the file only when such a change is intended, and say why in the commit::
+
+    python -m tests.models.test_madp_contract --regenerate
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file, save_file
+
+from madp.models import MADP
+from madp.models.madp import TimestepEmbedding, pack_rows
+
+sys.path.insert(0, str(Path(__file__).parent))
+from models_testutils import grid_positions, random_obs, tiny_madp_config  # noqa: E402
+
+GOLDEN = Path(__file__).parent / "data" / "madp_golden.safetensors"
+
+
+def test_sinusoidal_embedding_is_the_transformer_formula():
+    """Guards ``sinusoidal``: frequencies ``10000^(-i/half)``, ``sin`` then ``cos`` on the last axis."""
+    emb = TimestepEmbedding(8, 16)
+    k = torch.tensor([0, 1, 7, 1000])
+    want = torch.tensor([[math.sin(kk * 10000.0 ** (-i / 4)) for i in range(4)]
+                         + [math.cos(kk * 10000.0 ** (-i / 4)) for i in range(4)] for kk in k.tolist()])
+    assert torch.allclose(emb.sinusoidal(k), want, atol=1e-4)
+    with pytest.raises(ValueError, match="^time embedding dim must be even$"):
+        TimestepEmbedding(7, 16)
+
+
+def test_time_embedding_mlp_is_linear_leaky_relu_linear():
+    """Guards the LeakyReLU between the two Linear layers and the dtype cast of the features."""
+    emb = TimestepEmbedding(8, 4, leaky_slope=0.1).double()
+    k = torch.tensor([3, 900])
+    lin1, act, lin2 = emb.mlp
+    assert isinstance(act, torch.nn.LeakyReLU) and act.negative_slope == 0.1
+    h = emb.sinusoidal(k).double() @ lin1.weight.T + lin1.bias
+    want = torch.where(h > 0, h, 0.1 * h) @ lin2.weight.T + lin2.bias
+    got = emb(k)
+    assert got.dtype == torch.float64 and torch.allclose(got, want)
+
+
+@pytest.mark.parametrize(
+    "sizes, row_len, rows, offsets",
+    [
+        ([3, 2, 4, 1, 5], 5, [0, 0, 1, 1, 2], [0, 3, 0, 4, 0]),  # exact fill (3 + 2 = 5) stays in the row
+        ([5, 5], 5, [0, 1], [0, 0]),
+        ([1, 1, 1], 8, [0, 0, 0], [0, 1, 2]),
+        ([2, 7, 1], 8, [0, 1, 1], [0, 0, 7]),
+    ],
+)
+def test_pack_rows_is_next_fit(sizes, row_len, rows, offsets):
+    """Guards ``pack_rows``: next fit, a row filled exactly is not split, offsets restart at 0."""
+    row, off = pack_rows(torch.tensor(sizes), row_len)
+    assert row.tolist() == rows and off.tolist() == offsets
+    assert row.dtype == torch.long and off.dtype == torch.long
+
+
+def test_initialisation_is_nanogpt_style():
+    """Guards ``_init_weights``: Linear weights N(0, 0.02), residual projections N(0, 0.02 / sqrt(2 L)),
+    zero biases (L = encoder + decoder layers)."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config(d_model=64, n_enc_layers=3, n_dec_layers=3))
+    residual = [m for m in model.modules() if getattr(m, "is_residual_proj", False)]
+    plain = [m for m in model.modules() if isinstance(m, torch.nn.Linear) and not getattr(m, "is_residual_proj", False)]
+    assert residual and plain
+    res_w = torch.cat([m.weight.flatten() for m in residual])
+    plain_w = torch.cat([m.weight.flatten() for m in plain])
+    assert res_w.std().item() == pytest.approx(0.02 / math.sqrt(12), rel=0.05)
+    assert plain_w.std().item() == pytest.approx(0.02, rel=0.05)
+    assert all(m.bias is None or not m.bias.any() for m in residual + plain)
+
+
+def test_loss_is_the_masked_mean_squared_noise_error(gen):
+    """Guards ``loss``: ``(eps_hat - noise)^2`` averaged over valid robots and both action axes, with
+    k and noise drawn from ``generator`` (k first, then noise)."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config()).eval()
+    b, n = 2, 5
+    obs = random_obs(b, n, generator=gen)
+    pos = grid_positions(b * n, 0, 300, gen).view(b, n, 2)
+    act = torch.randn(b, n, 2, generator=gen)
+    valid = torch.tensor([[True] * 5, [True, True, True, False, False]])
+    g = torch.Generator().manual_seed(5)
+    k = model.schedule.sample_timesteps(b, generator=g)
+    noise = torch.randn(b, n, 2, generator=g)
+    memory, mask = model.encode(obs, pos, valid)
+    eps_hat = model.denoise(model.schedule.add_noise(act, noise, k), k, memory, pos, mask)
+    err = (eps_hat - noise).square()
+    want = (err[0].sum() + err[1, :3].sum()) / (8 * 2)
+    with torch.no_grad():
+        got = model(obs, pos, act, valid, torch.Generator().manual_seed(5))
+        assert torch.allclose(got, want, rtol=1e-5)
+        memory, mask = model.encode(obs, pos)
+        eps_all = model.denoise(model.schedule.add_noise(act, noise, k), k, memory, pos, mask)
+        assert torch.allclose(model.loss(obs, pos, act, None, k=k, noise=noise),
+                              (eps_all - noise).square().mean(), rtol=1e-5)
+
+
+# ---------------------------------------------------------------- pinned wiring (characterization)
+
+
+def _golden_outputs() -> dict[str, torch.Tensor]:
+    torch.set_num_threads(1)
+    out = {}
+    gen = torch.Generator().manual_seed(2026)
+    b, n = 2, 7
+    obs = random_obs(b, n, generator=gen)
+    pos = grid_positions(b * n, 0, 420, gen).view(b, n, 2)  # r_c = 256: neighbourhoods, not one clique
+    valid = torch.ones(b, n, dtype=torch.bool)
+    valid[1, 5:] = False
+    act = torch.randn(b, n, 2, generator=gen)
+    for name, cfg in (("offset", tiny_madp_config()), ("nopos", tiny_madp_config(pos_token="none"))):
+        torch.manual_seed(0)
+        model = MADP(cfg).eval()
+        with torch.no_grad():
+            memory, mask = model.encode(obs, pos, valid)
+            out[f"{name}.memory"] = memory
+            out[f"{name}.eps"] = model.denoise(act, torch.tensor([3, 700]), memory, pos, mask, valid)
+            out[f"{name}.eps_int_k"] = model.denoise(act, 250, memory, pos, mask, valid)
+            out[f"{name}.loss"] = model(obs, pos, act, valid, torch.Generator().manual_seed(9)).reshape(1)
+            out[f"{name}.loss_nomask"] = model(obs, pos, act, None, torch.Generator().manual_seed(9)).reshape(1)
+            for sampler, eta in (("ddim", 0.5), ("dpm++", 0.0)):
+                g = torch.Generator().manual_seed(11)
+                out[f"{name}.sample.{sampler}"] = model.sample(obs, pos, 3, eta, g, valid, sampler=sampler)
+                g = torch.Generator().manual_seed(11)
+                out[f"{name}.dec.{sampler}"] = model.sample_decentralized(obs, pos, 3, eta, g, valid, sampler=sampler)
+            out[f"{name}.clip"] = model.sample(obs, pos, 3, 0.0, torch.Generator().manual_seed(11), valid,
+                                               sampler="ddim", clip_x0=0.3)
+    return {k: v.detach().contiguous().float() for k, v in out.items()}
+
+
+def test_model_function_is_pinned():
+    """A seeded tiny model on fixed inputs computes the stored numbers (see the module docstring)."""
+    want = load_file(GOLDEN)
+    got = _golden_outputs()
+    assert sorted(got) == sorted(want)
+    for key in want:
+        assert torch.allclose(got[key], want[key], rtol=1e-4, atol=1e-5), key
+
+
+if __name__ == "__main__":
+    if "--regenerate" not in sys.argv:
+        sys.exit("usage: python -m tests.models.test_madp_contract --regenerate")
+    GOLDEN.parent.mkdir(exist_ok=True)
+    save_file(_golden_outputs(), str(GOLDEN))
+    print(f"wrote {GOLDEN}")
