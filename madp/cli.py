@@ -60,6 +60,7 @@ def rollout(
     seed: Optional[int] = typer.Option(None, help="MADP's sampling-noise seed (default: the scenario's seed, else 0, as madp eval)."),
     steps: int = typer.Option(600, min=0, help="Control steps to run."),
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
+    video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import NAMES, make_controller
@@ -70,13 +71,26 @@ def rollout(
         raise UserError(f"--controller: expected one of {', '.join(NAMES)}, got {controller!r}")
     if checkpoint is not None and controller in ("clairvoyant", "dcvt"):
         raise UserError(f"--checkpoint: the {controller} controller takes no checkpoint")
+    if video is not None:
+        from madp.video import check_video_path
+
+        try:
+            check_video_path(video)  # before the rollout, not after it
+        except ValueError as e:
+            raise UserError(f"--video: {e}") from None
     sc = Scenario.load(scenario)
     noise_seed = seed if seed is not None else (sc.seed if sc.seed is not None else 0)
     ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed)
-    result = run(CoverageEnv(sc), ctrl, steps)
+    env = CoverageEnv(sc)
+    result = run(env, ctrl, steps)
     _write_json(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
                f" (converged at {result.converged_at}) -> {out}")
+    if video is not None:
+        from madp.video import write_rollout_video
+
+        v = write_rollout_video(video, env.world_map, result.positions_m, result.normalized_cost, progress=True)
+        typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
 
 
 # --- datagen and datasets --------------------------------------------------------------------
@@ -206,6 +220,7 @@ def train(
     resume: bool = typer.Option(False, help="Continue the run in --out from its latest checkpoint."),
     seed: Optional[int] = typer.Option(None, help="Seed of initialisation, data order and noise."),
     workers: Optional[int] = typer.Option(None, help="DataLoader worker processes per rank."),
+    grad_accum: Optional[int] = typer.Option(None, help="Micro-batches per optimizer step (default 1). One process with --grad-accum R and R x --workers trains exactly as torchrun with R ranks."),
     val_samples: Optional[int] = typer.Option(None, help="Validation samples per epoch."),
     max_steps_per_epoch: Optional[int] = typer.Option(None, help="Cap the steps of an epoch (0: whole split)."),
     checkpoint_every: Optional[int] = typer.Option(None, help="Steps between 'latest' checkpoints."),
@@ -229,7 +244,7 @@ def train(
         raise ValueError(f"--data-weights: expected comma-separated numbers, got {data_weights!r}") from None
     cfg = resolve(model, preset, data=str(data[0]), more_data=tuple(str(d) for d in data[1:]), data_weights=weights,
                   out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
-                  lr=lr, seed=seed, num_workers=workers, val_samples=val_samples,
+                  lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
                   stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight,
                   init=str(init) if init else None)
@@ -259,11 +274,12 @@ def eval_cmd(
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
+    video: int = typer.Option(0, min=0, help="Write MP4 videos of K environments per controller, spread over the suite's groups (each group's first, then each group's second, ...; cities: the first K cities) to OUT/<suite>/videos/."),
     cities: Optional[Path] = typer.Option(None, help="Directory of city files (default: the 40 cities shipped with madp)."),
     out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
     overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
 ) -> None:
-    """Evaluate controllers across a scenario suite: tables, plots and MCAP rollouts."""
+    """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
     from madp.eval.suites import SUITES
 
@@ -280,7 +296,7 @@ def eval_cmd(
     check_sampler(sampler, sampling_steps, eta)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampler=sampler, sampling_steps=sampling_steps, eta=eta,
-                     fixed_noise=fixed_noise, workers=workers, record=record, cities=str(cities) if cities else None)
+                     fixed_noise=fixed_noise, workers=workers, record=record, video=video, cities=str(cities) if cities else None)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     skipped = [c for c in requested if c not in used]
     if skipped:

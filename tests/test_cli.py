@@ -23,15 +23,34 @@ def test_rollout_writes_cost_and_positions(tmp_path):
     assert len(res["positions"]) == 3 and len(res["positions"][0]) == 2
 
 
+def test_rollout_writes_a_video(tmp_path):
+    """``madp rollout --video out.mp4``: steps + 1 frames, read back with OpenCV."""
+    from tests.test_video import assert_video
+
+    sc = tmp_path / "s.json"
+    sc.write_text(json.dumps({"features": [{"mean": [60, 70], "sigma": 15, "peak": 0.8}],
+                              "robots": [[10, 10], [100, 100], [50, 20]],
+                              "params": {"world_size": 128, "local_map_size": 64, "sensor_size": 16}}))
+    video = tmp_path / "videos" / "r.mp4"
+    r = madp("rollout", "--scenario", str(sc), "--controller", "dcvt", "--steps", "5", "--out", str(tmp_path / "r.json"),
+             "--video", str(video))
+    assert r.returncode == 0, r.stderr
+    assert "6 frames" in r.stdout and str(video) in r.stdout
+    assert_video(video, 6, 512)
+    assert sorted(p.name for p in video.parent.iterdir()) == ["r.mp4"]  # no temporary file left
+
+
 @pytest.mark.parametrize("args,needle", [
     (["rollout", "--scenario", "/nonexistent.json"], "/nonexistent.json"),
     (["rollout", "--scenario", "{sc}", "--controller", "lqr"], "--controller"),
     (["rollout", "--scenario", "{sc}", "--controller", "dcvt", "--checkpoint", "x.safetensors"], "--checkpoint"),
+    (["rollout", "--scenario", "{sc}", "--controller", "dcvt", "--video", "{tmp}/r.avi"], "--video"),
+    (["rollout", "--scenario", "{sc}", "--controller", "dcvt", "--video", "{sc}/r.mp4"], "s.json"),
 ])
 def test_user_errors_are_one_line(tmp_path, args, needle):
     sc = tmp_path / "s.json"
     sc.write_text('{"features": [], "robots": [[1, 1]]}')
-    r = madp(*[a.format(sc=sc) for a in args])
+    r = madp(*[a.format(sc=sc, tmp=tmp_path) for a in args])
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "Traceback" not in r.stderr

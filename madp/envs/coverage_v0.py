@@ -17,7 +17,8 @@
 - **Termination** never; **truncation** of every agent after ``max_steps`` (default 600) steps.
 - **Scenario**: the given one at every reset, or, when none is given, ``Scenario.random(seed)`` drawn
   at each reset (seed from ``reset(seed=…)``, else from the env's generator), with ``params``.
-- ``render_mode="rgb_array"``: the map, Voronoi cells and robots (:func:`madp.envs.render.render_frame`).
+- ``render_mode="rgb_array"``: the map, Voronoi cells, trails, robots, step and J(t)/J(0) (:mod:`madp.render`;
+  the frames of ``madp rollout --video``), ``render_size`` pixels square.
 - ``infos[agent]["normalized_cost"]`` is J(t)/J(0).
 - Any madp controller drives it: ``env.step(env.actions_from(make_controller("madp")))``
   (:func:`madp.controllers.make_controller`; the world is ``env.sim``, a :class:`CoverageEnv`).
@@ -26,7 +27,6 @@
 from __future__ import annotations
 
 import functools
-from pathlib import Path
 
 import numpy as np
 from gymnasium import spaces
@@ -34,41 +34,11 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
-from madp.sim import CoverageEnv, Scenario, SimParams
+from madp.sim import SimParams
 
-from .render import render_frame
+from .base import DEFAULT_MAX_STEPS, RENDER_MODES, CoverageWorld, map_bounds
 
-DEFAULT_MAX_STEPS = 600
-
-
-def resolve_scenario(scenario) -> Scenario | None:
-    """A :class:`Scenario`, a scenario file path, or anything with ``.scenario()`` (a suite EnvSpec)."""
-    if scenario is None or isinstance(scenario, Scenario):
-        return scenario
-    if isinstance(scenario, (str, Path)):
-        return Scenario.load(scenario)
-    if hasattr(scenario, "scenario"):
-        return scenario.scenario()
-    raise TypeError(f"scenario: expected a Scenario, a path or a suite EnvSpec, got {type(scenario).__name__}")
-
-
-def episode_scenario(fixed: Scenario | None, params: SimParams, seed: int | None, rng: np.random.Generator) -> Scenario:
-    """The scenario of the next episode: ``fixed`` if given, else ``Scenario.random(seed)`` (a seed
-    drawn from ``rng`` when ``seed`` is None), so ``reset(seed=s)`` replays madp's scenario of seed s."""
-    if fixed is not None:
-        return fixed
-    draw = int(seed) if seed is not None else int(rng.integers(0, 2**62))
-    return Scenario.random(draw, params)
-
-
-def map_bounds(params: SimParams) -> tuple[np.ndarray, np.ndarray]:
-    """Per-channel bounds of the [4, S, S] map tensor: maps in [0, 1]; neighbour channels are sums of
-    r / r_c over at most N−1 neighbours, so in [−(N−1), N−1]."""
-    s, k = params.obs_size, max(params.num_robots - 1, 1)
-    low = np.zeros((4, s, s), dtype=np.float32)
-    high = np.ones((4, s, s), dtype=np.float32)
-    low[1:3], high[1:3] = -k, k
-    return low, high
+__all__ = ["CoverageParallelEnv", "DEFAULT_MAX_STEPS", "env", "neighbour_table", "parallel_env", "raw_env"]
 
 
 def agent_observation_space(params: SimParams) -> spaces.Dict:
@@ -100,24 +70,16 @@ def neighbour_table(positions_m: np.ndarray, comm_radius_m: float) -> tuple[np.n
     return np.clip(table.astype(np.float32), -bound, bound), mask.astype(np.int8)
 
 
-class CoverageParallelEnv(ParallelEnv):
+class CoverageParallelEnv(CoverageWorld, ParallelEnv):
     """PettingZoo parallel coverage environment (see the module docstring)."""
 
-    metadata = {"name": "coverage_v0", "render_modes": ["rgb_array"], "render_fps": 5, "is_parallelizable": True}
+    metadata = {"name": "coverage_v0", "render_modes": RENDER_MODES, "render_fps": 5, "is_parallelizable": True}
 
     def __init__(self, scenario=None, params: SimParams | None = None, max_steps: int = DEFAULT_MAX_STEPS,
                  render_mode: str | None = None, render_size: int = 512, seed: int | None = None):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        self.scenario = resolve_scenario(scenario)
-        self.params = self.scenario.params if self.scenario is not None else (params or SimParams())
-        self.max_steps, self.render_mode, self.render_size = int(max_steps), render_mode, int(render_size)
-        n = self.params.num_robots if self.scenario is None else len(self.scenario.robots_m)
+        n = self._configure(scenario, params, max_steps, render_mode, render_size)
         self.possible_agents = [f"robot_{i}" for i in range(n)]
         self.agents: list[str] = []
-        self.sim: CoverageEnv | None = None
         self.np_random, self.np_random_seed = seeding.np_random(seed)
         self._obs_space = agent_observation_space(self.params)
         u = float(self.params.max_speed_mps)
@@ -136,13 +98,8 @@ class CoverageParallelEnv(ParallelEnv):
     def reset(self, seed: int | None = None, options: dict | None = None):
         if seed is not None:
             self.np_random, self.np_random_seed = seeding.np_random(seed)
-        scenario = episode_scenario(self.scenario, self.params, seed, self.np_random)
-        if self.sim is None or self.sim.scenario is not scenario:
-            self.sim = CoverageEnv(scenario)
-        else:
-            self.sim.reset()
+        self._begin(seed, self.np_random)
         self.agents = list(self.possible_agents)
-        self._cost = self.sim.cost()
         return self._observations(), self._infos()
 
     def step(self, actions: dict):
@@ -152,15 +109,12 @@ class CoverageParallelEnv(ParallelEnv):
         for i, agent in enumerate(self.possible_agents):
             if actions.get(agent) is not None:
                 u[i] = np.asarray(actions[agent], dtype=np.float64).reshape(2)
-        self.sim.step(u)
-        cost = self.sim.cost()
-        reward = float((self._cost - cost) / self.sim.cost0)
-        self._cost = cost
+        reward = self._advance(u)
         obs, infos = self._observations(), self._infos()
         rewards = dict.fromkeys(self.agents, reward)
         terminations = dict.fromkeys(self.agents, False)
-        truncations = dict.fromkeys(self.agents, self.sim.steps >= self.max_steps)
-        if self.sim.steps >= self.max_steps:
+        truncations = dict.fromkeys(self.agents, self.truncated)
+        if self.truncated:
             self.agents = []
         return obs, rewards, terminations, truncations, infos
 
@@ -179,17 +133,11 @@ class CoverageParallelEnv(ParallelEnv):
                 for i, a in enumerate(self.possible_agents)}
 
     def _infos(self) -> dict:
-        info = {"normalized_cost": float(self._cost / self.sim.cost0), "step": int(self.sim.steps)}
-        return {a: dict(info) for a in self.possible_agents}
+        return {a: self._info() for a in self.possible_agents}
 
     def state(self) -> np.ndarray:
         """Global state: positions [N, 2] (m)."""
         return self.sim.positions_m.copy()
-
-    def render(self):
-        if self.render_mode is None or self.sim is None:
-            return None
-        return render_frame(self.sim.world_map, self.sim.positions_m, self.render_size)
 
     def close(self) -> None:
         pass

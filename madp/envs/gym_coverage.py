@@ -5,7 +5,7 @@
 
 Observation ``Dict``: ``positions`` [N, 2] (m) and ``maps`` [N, 4, 32, 32] (every robot's observation
 tensor, as madp's policies see them). Action: velocities [N, 2] m/s in ``Box(-u_max, u_max)``, each
-robot's speed clipped to u_max by the simulator. Reward, truncation, scenarios and seeding as in
+robot's speed clipped to u_max by the simulator. Reward, truncation, scenarios, seeding and ``render()`` as in
 :mod:`madp.envs.coverage_v0`: (J(t−1) − J(t)) / J(0); truncated after ``max_steps``; never terminated.
 """
 
@@ -15,27 +15,19 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from madp.sim import CoverageEnv, SimParams
+from madp.sim import SimParams
 
-from .coverage_v0 import DEFAULT_MAX_STEPS, episode_scenario, map_bounds, resolve_scenario
-from .render import render_frame
+from .base import DEFAULT_MAX_STEPS, RENDER_MODES, CoverageWorld, map_bounds
 
 
-class CoverageGymEnv(gym.Env):
+class CoverageGymEnv(CoverageWorld, gym.Env):
     """Centralized view of madp's coverage world (see the module docstring)."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+    metadata = {"render_modes": RENDER_MODES, "render_fps": 5}
 
     def __init__(self, scenario=None, params: SimParams | None = None, max_steps: int = DEFAULT_MAX_STEPS,
                  render_mode: str | None = None, render_size: int = 512):
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        self.scenario = resolve_scenario(scenario)
-        self.params = self.scenario.params if self.scenario is not None else (params or SimParams())
-        self.max_steps, self.render_mode, self.render_size = int(max_steps), render_mode, int(render_size)
-        n = self.params.num_robots if self.scenario is None else len(self.scenario.robots_m)
+        n = self._configure(scenario, params, max_steps, render_mode, render_size)
         low, high = map_bounds(self.params)
         u, w = float(self.params.max_speed_mps), float(self.params.world_size)
         self.observation_space = spaces.Dict({
@@ -44,26 +36,17 @@ class CoverageGymEnv(gym.Env):
                                dtype=np.float32),
         })
         self.action_space = spaces.Box(-u, u, (n, 2), dtype=np.float32)
-        self.sim: CoverageEnv | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        scenario = episode_scenario(self.scenario, self.params, seed, self.np_random)
-        if self.sim is None or self.sim.scenario is not scenario:
-            self.sim = CoverageEnv(scenario)
-        else:
-            self.sim.reset()
-        self._cost = self.sim.cost()
+        self._begin(seed, self.np_random)
         return self._observation(), self._info()
 
     def step(self, action):
         if self.sim is None:
             raise RuntimeError("step() before reset()")
-        self.sim.step(np.asarray(action, dtype=np.float64).reshape(self.sim.num_robots, 2))
-        cost = self.sim.cost()
-        reward = float((self._cost - cost) / self.sim.cost0)
-        self._cost = cost
-        return self._observation(), reward, False, self.sim.steps >= self.max_steps, self._info()
+        reward = self._advance(np.asarray(action, dtype=np.float64).reshape(self.sim.num_robots, 2))
+        return self._observation(), reward, False, self.truncated, self._info()
 
     def action_from(self, controller) -> np.ndarray:
         """The action [N, 2] of any madp controller (:mod:`madp.controllers`) in the current state."""
@@ -71,11 +54,3 @@ class CoverageGymEnv(gym.Env):
 
     def _observation(self) -> dict:
         return {"positions": self.sim.positions_m.astype(np.float32), "maps": self.sim.observations()}
-
-    def _info(self) -> dict:
-        return {"normalized_cost": float(self._cost / self.sim.cost0), "step": int(self.sim.steps)}
-
-    def render(self):
-        if self.render_mode is None or self.sim is None:
-            return None
-        return render_frame(self.sim.world_map, self.sim.positions_m, self.render_size)

@@ -41,7 +41,7 @@ per-step SceneUpdate except ``/actions`` the entities are in robot order, one pe
 A metadata record :data:`METADATA_NAME` carries the controller, title, N, T, dt and the recording
 parameters. Log (and publish) times are simulated time, step t at ``t · dt_s`` (integer ns), never
 wall clock; with fixed zstd chunking the file's bytes are a pure function of the input. The file is
-written to ``path.<pid>.tmp`` and renamed into place.
+written to ``path.<pid>.tmp`` and renamed into place (:func:`madp.io.atomic.atomic_path`).
 
 In Foxglove: open the file, add a **3D** panel, set its display frame to ``world`` and (for a map
 view) switch the camera to 2D / top-down; enable the topics in the panel's settings. The grid's
@@ -66,7 +66,8 @@ from madp.data_schema.foxglove_viz import (
     actions_message,
     grid_message,
 )
-from madp.io.atomic import named, temp_path
+from madp.io.atomic import atomic_path
+from madp.render import robot_colors
 
 PathLike = Union[str, os.PathLike]
 
@@ -97,32 +98,8 @@ DRAW_QUANTUM_M = 1.0 / 256.0
 #: Uncompressed MCAP chunk size target, bytes.
 CHUNK_BYTES = 1 << 20
 
-_GOLDEN = 0.6180339887498949
-
-
 # --------------------------------------------------------------------------------------------
 # geometry and colours
-
-
-def robot_colors(n: int) -> np.ndarray:
-    """Stable, distinct RGB colours ``[n, 3]`` in [0, 1]: robot ``i`` gets hue ``i · 0.618… mod 1``.
-
-    The colour of robot ``i`` does not depend on ``n``; neighbouring indices land far apart on the hue
-    wheel, and value alternates between two levels every other robot for more contrast.
-    """
-    i = np.arange(n)
-    h = (i * _GOLDEN) % 1.0
-    s = np.full(n, 0.8)
-    v = np.where(i % 2 == 0, 1.0, 0.8)
-    h6 = h * 6.0
-    sector = np.floor(h6).astype(int) % 6
-    f = h6 - np.floor(h6)
-    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
-    table = np.stack([
-        np.stack([v, t, p], 1), np.stack([q, v, p], 1), np.stack([p, v, t], 1),
-        np.stack([p, q, v], 1), np.stack([t, p, v], 1), np.stack([v, p, q], 1),
-    ])  # [6, n, 3]
-    return table[sector, i]
 
 
 def _clip_halfplanes(poly: np.ndarray, count: np.ndarray, normal: np.ndarray, point: np.ndarray, empty: np.ndarray):
@@ -411,75 +388,66 @@ def write_rollout_mcap(
         scene_topics.append(TOPIC_SAMPLES)
 
     final = Path(os.fspath(path))
-    tmp = temp_path(final)
     counts: dict[str, int] = {}
-    try:
-        with open(tmp, "wb") as f:
-            writer = start_writer(f, CHUNK_BYTES)
-            channels: dict[str, int] = {}
-            schema_ids: dict[str, int] = {}
-            for topic, cls in [(TOPIC_MAP, fx.Grid)] + [(t, fx.SceneUpdate) for t in scene_topics]:
-                schema = cls.get_schema()
-                if schema.name not in schema_ids:
-                    schema_ids[schema.name] = writer.register_schema(name=schema.name, encoding=schema.encoding, data=bytes(schema.data))
-                channels[topic] = writer.register_channel(
-                    topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_ids[schema.name]
-                )
-                counts[topic] = 0
-
-            def emit(topic: str, log_time: int, data: bytes) -> None:
-                writer.add_message(
-                    channel_id=channels[topic], log_time=log_time, data=data, publish_time=log_time, sequence=counts[topic]
-                )
-                counts[topic] += 1
-
-            emit(TOPIC_MAP, 0, grid_message(world, 0))
-            for t in steps.tolist():
-                log_time = t * step_ns
-                p = pos[t]
-                emit(TOPIC_ROBOTS, log_time, robots_scene(p, colors, log_time))
-                emit(TOPIC_VORONOI, log_time, voronoi_scene(p, size_m, colors, log_time))
-                emit(TOPIC_TRAJECTORIES, log_time, trajectories_scene(pos[_trajectory_indices(t)].transpose(1, 0, 2), colors, log_time))
-                if t < num_steps:
-                    ok = np.isfinite(act[t]).all(axis=1)
-                    emit(TOPIC_ROLLOUT_ACTIONS, log_time, actions_message(p[ok], act[t][ok], log_time))
-                else:
-                    emit(TOPIC_ROLLOUT_ACTIONS, log_time, _delete_all(log_time))
-                if samples is not None:
-                    if t < num_steps:
-                        fans = sample_paths(p, samples[t], float(dt_s), int(sample_horizon_steps), size_m)
-                        emit(TOPIC_SAMPLES, log_time, samples_scene(fans, colors, log_time))
-                    else:
-                        emit(TOPIC_SAMPLES, log_time, _delete_all(log_time))
-
-            from madp import __version__
-
-            writer.add_metadata(
-                METADATA_NAME,
-                {
-                    "controller": str(controller),
-                    "title": str(title),
-                    "num_robots": str(n),
-                    "num_steps": str(num_steps),
-                    "step_seconds": repr(float(dt_s)),
-                    "every": str(int(every)),
-                    "recorded_steps": str(len(steps)),
-                    "samples_per_robot": str(samples.shape[2]) if samples is not None else "0",
-                    "sample_horizon_steps": str(int(sample_horizon_steps)),
-                    "world_size_m": f"{size_m[0]:g}x{size_m[1]:g}",
-                    "frame_id": FRAME_ID,
-                    "code_version": __version__,
-                    **{str(k): str(v) for k, v in (extra_metadata or {}).items()},
-                },
+    with atomic_path(final) as tmp, open(tmp, "wb") as f:
+        writer = start_writer(f, CHUNK_BYTES)
+        channels: dict[str, int] = {}
+        schema_ids: dict[str, int] = {}
+        for topic, cls in [(TOPIC_MAP, fx.Grid)] + [(t, fx.SceneUpdate) for t in scene_topics]:
+            schema = cls.get_schema()
+            if schema.name not in schema_ids:
+                schema_ids[schema.name] = writer.register_schema(name=schema.name, encoding=schema.encoding, data=bytes(schema.data))
+            channels[topic] = writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_ids[schema.name]
             )
-            writer.finish()
-        os.replace(tmp, final)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise named(e, final) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+            counts[topic] = 0
+
+        def emit(topic: str, log_time: int, data: bytes) -> None:
+            writer.add_message(
+                channel_id=channels[topic], log_time=log_time, data=data, publish_time=log_time, sequence=counts[topic]
+            )
+            counts[topic] += 1
+
+        emit(TOPIC_MAP, 0, grid_message(world, 0))
+        for t in steps.tolist():
+            log_time = t * step_ns
+            p = pos[t]
+            emit(TOPIC_ROBOTS, log_time, robots_scene(p, colors, log_time))
+            emit(TOPIC_VORONOI, log_time, voronoi_scene(p, size_m, colors, log_time))
+            emit(TOPIC_TRAJECTORIES, log_time, trajectories_scene(pos[_trajectory_indices(t)].transpose(1, 0, 2), colors, log_time))
+            if t < num_steps:
+                ok = np.isfinite(act[t]).all(axis=1)
+                emit(TOPIC_ROLLOUT_ACTIONS, log_time, actions_message(p[ok], act[t][ok], log_time))
+            else:
+                emit(TOPIC_ROLLOUT_ACTIONS, log_time, _delete_all(log_time))
+            if samples is not None:
+                if t < num_steps:
+                    fans = sample_paths(p, samples[t], float(dt_s), int(sample_horizon_steps), size_m)
+                    emit(TOPIC_SAMPLES, log_time, samples_scene(fans, colors, log_time))
+                else:
+                    emit(TOPIC_SAMPLES, log_time, _delete_all(log_time))
+
+        from madp import __version__
+
+        writer.add_metadata(
+            METADATA_NAME,
+            {
+                "controller": str(controller),
+                "title": str(title),
+                "num_robots": str(n),
+                "num_steps": str(num_steps),
+                "step_seconds": repr(float(dt_s)),
+                "every": str(int(every)),
+                "recorded_steps": str(len(steps)),
+                "samples_per_robot": str(samples.shape[2]) if samples is not None else "0",
+                "sample_horizon_steps": str(int(sample_horizon_steps)),
+                "world_size_m": f"{size_m[0]:g}x{size_m[1]:g}",
+                "frame_id": FRAME_ID,
+                "code_version": __version__,
+                **{str(k): str(v) for k, v in (extra_metadata or {}).items()},
+            },
+        )
+        writer.finish()
     return {"path": str(final), "bytes": final.stat().st_size, "messages": sum(counts.values()), "topics": counts}
 
 

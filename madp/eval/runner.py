@@ -8,6 +8,7 @@ Layout of ``OUT/<suite>/``::
     results.parquet        final cost and wall time per control step per (group, env, controller)
     summary.md, summary.json, *.png      from :mod:`madp.eval.report`
     rollouts/<env>-<controller>.mcap     with --record K: the first K environments, for Foxglove
+    videos/<env>-<controller>.mp4        with --video K: K environments spread over the groups (:func:`video_envs`)
 
 An interrupted evaluation resumes: finished jobs are kept, the rest run. The suite directory is
 locked (:mod:`madp.io.lock`) while a run writes it, its worker processes die with it, and
@@ -26,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from madp.data_schema.manifest import sha256_file
-from madp.io.atomic import named, remove_temps, temp_path, write_text_atomic
+from madp.io.atomic import atomic_path, remove_temps, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
 from madp.io.workers import die_with_parent
@@ -37,7 +38,7 @@ from madp.sim import CoverageEnv
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
-SETTING_DEFAULTS = {"fixed_noise": False}
+SETTING_DEFAULTS = {"fixed_noise": False, "video": 0}
 
 ORDER = CLASSICAL + LEARNED
 
@@ -57,6 +58,7 @@ class EvalConfig:
     fixed_noise: bool = False
     workers: int = 0
     record: int = 0
+    video: int = 0
     cities: str | None = None
     record_every: int = 5
     record_samples: int = 4
@@ -78,8 +80,23 @@ def sampling_settings(cfg: EvalConfig, controller: str) -> dict:
     return {"sampler": cfg.sampler, "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise}
 
 
-def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, record: bool = False) -> dict:
-    """Roll one controller out on one environment; write its job file (and an MCAP if ``record``)."""
+def video_envs(envs: list[EnvSpec], k: int) -> list[EnvSpec]:
+    """The environments ``--video K`` films: K of them, taken across the suite's groups in turn (every
+    group's first environment, then every group's second, …), so a suite of G groups gets one video
+    per group at K = G; for ``uniform`` these are the first K environments, for ``cities`` the first
+    K cities."""
+    groups = list(dict.fromkeys(e.group for e in envs))
+    return sorted(envs, key=lambda e: (e.index, groups.index(e.group)))[:k]
+
+
+def video_path(suite_dir: Path, spec: EnvSpec, controller: str) -> Path:
+    return suite_dir / "videos" / f"{spec.key}-{controller}.mp4"
+
+
+def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, record: bool = False,
+            video: bool = False) -> dict:
+    """Roll one controller out on one environment; write its job file (and an MCAP if ``record``, an
+    MP4 if ``video``)."""
     job_file = suite_dir / "jobs" / f"{spec.key}-{controller}.npz"
     scenario = spec.scenario()
     env = CoverageEnv(scenario)
@@ -88,7 +105,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     costs = np.empty(t_steps + 1)
     costs[0] = 1.0
     step_s = np.empty(t_steps)
-    positions = np.empty((t_steps + 1, env.num_robots, 2)) if record else None
+    positions = np.empty((t_steps + 1, env.num_robots, 2)) if record or video else None
     actions = np.empty((t_steps, env.num_robots, 2)) if record else None
     samples = None
     if record and controller.startswith("madp"):
@@ -118,28 +135,29 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
                            controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
                            extra_metadata=sampling_settings(cfg, controller))
+    if video:
+        from madp.video import write_rollout_video
+
+        write_rollout_video(video_path(suite_dir, spec, controller), env.world_map, positions, costs)
     _save_job(job_file, costs, step_s, env.num_robots, len(scenario.features))
     return {"key": spec.key, "controller": controller}
 
 
 def _save_job(job_file: Path, costs: np.ndarray, step_s: np.ndarray, num_robots: int, num_features: int) -> None:
     job_file.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_path(job_file, ".npz")
-    try:
+    with atomic_path(job_file, ".npz", fsync=False) as tmp:  # a full disk: the error names the job file
         np.savez(tmp, cost=costs, step_s=step_s, num_robots=num_robots, num_features=num_features)
-        os.replace(tmp, job_file)
-    except OSError as e:  # a full disk: say which file
-        tmp.unlink(missing_ok=True)
-        raise named(e, job_file) from None
 
 
-def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir: Path) -> list[dict]:
+def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir: Path,
+              video: frozenset[str] = frozenset()) -> list[dict]:
     """Roll a learned controller out on several environments (same N) in lockstep, one policy call
     per control step for all of them; write one job file per environment.
 
     Each environment keeps its own sampling noise (MADP: a generator seeded as in :func:`run_job`),
     so a batch differs from lone rollouts only by float rounding. ``step_s`` is the batch's wall
-    time per control step divided by the batch size (the amortised cost per environment)."""
+    time per control step divided by the batch size (the amortised cost per environment). The
+    environments whose keys are in ``video`` are filmed (MP4), in the batch, so filming changes no result."""
     from madp.policies import noise_generator
 
     envs = [CoverageEnv(s.scenario()) for s in specs]
@@ -151,6 +169,10 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
     costs = np.empty((b, t_steps + 1))
     costs[:, 0] = 1.0
     step_s = np.empty(t_steps)
+    filmed = [i for i, s in enumerate(specs) if s.key in video]
+    positions = np.empty((len(filmed), t_steps + 1, envs[0].num_robots, 2))
+    for j, i in enumerate(filmed):
+        positions[j, 0] = envs[i].positions_m
     for t in range(t_steps):
         t0 = time.perf_counter()
         u = ctrl.act_batch(envs, generators)
@@ -158,6 +180,13 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
         for i, env in enumerate(envs):
             env.step(u[i])
             costs[i, t + 1] = env.normalized_cost()
+        for j, i in enumerate(filmed):
+            positions[j, t + 1] = envs[i].positions_m
+    if filmed:
+        from madp.video import write_rollout_video
+
+        for j, i in enumerate(filmed):
+            write_rollout_video(video_path(suite_dir, specs[i], controller), envs[i].world_map, positions[j], costs[i])
     for i, (spec, env) in enumerate(zip(specs, envs)):
         _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs[i], step_s, env.num_robots,
                   len(env.scenario.features))
@@ -193,20 +222,22 @@ def plan_jobs(envs: list[EnvSpec], controllers: tuple[str, ...], suite_dir: Path
     return [(c, [e for e in es if not done(e, c)], rec) for c, es, rec in tasks if any(not done(e, c) for e in es)]
 
 
-def run_task(cfg: EvalConfig, controller: str, specs: list[EnvSpec], suite_dir: Path, record: bool) -> int:
+def run_task(cfg: EvalConfig, controller: str, specs: list[EnvSpec], suite_dir: Path, record: bool,
+             video: frozenset[str] = frozenset()) -> int:
+    """Run one task of :func:`plan_jobs`; film the environments whose keys are in ``video``."""
     if len(specs) == 1:
-        run_job(cfg, specs[0], controller, suite_dir, record)
+        run_job(cfg, specs[0], controller, suite_dir, record, specs[0].key in video)
     else:
-        run_batch(cfg, specs, controller, suite_dir)
+        run_batch(cfg, specs, controller, suite_dir, video)
     return len(specs)
 
 
 def _worker(args):
-    cfg, controller, specs, suite_dir, record = args
+    cfg, controller, specs, suite_dir, record, video = args
     import torch
 
     torch.set_num_threads(1)
-    return run_task(cfg, controller, specs, Path(suite_dir), record)
+    return run_task(cfg, controller, specs, Path(suite_dir), record, video)
 
 
 def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit: bool) -> tuple[EvalConfig, tuple[str, ...]]:
@@ -238,6 +269,7 @@ def owned_files(suite_dir: Path) -> list[str]:
     out = ["config.json", "curves.parquet", "results.parquet", "summary.md", "summary.json"]
     out += [f"jobs/{p.name}" for p in (suite_dir / "jobs").glob("*.npz")]
     out += [f"rollouts/{p.name}" for p in (suite_dir / "rollouts").glob("*.mcap")]
+    out += [f"videos/{p.name}" for p in (suite_dir / "videos").glob("*.mp4")]
     try:
         files = json.loads((suite_dir / "summary.json").read_text())["metadata"]["files"]
         out += [f for f in files if isinstance(f, str) and "/" not in f]
@@ -271,7 +303,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                       progress: bool) -> dict:
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
-                "record": cfg.record, "env_keys": [e.key for e in envs],
+                "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs]}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
@@ -298,15 +330,18 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
             else:
                 stale = [c for c in LEARNED if any(c.startswith(k) for k in retrained)]
                 for c in stale:
-                    for f in [*suite_dir.glob(f"jobs/*-{c}.npz"), *suite_dir.glob(f"rollouts/*-{c}.mcap")]:
+                    for f in [*suite_dir.glob(f"jobs/*-{c}.npz"), *suite_dir.glob(f"rollouts/*-{c}.mcap"),
+                              *suite_dir.glob(f"videos/*-{c}.mp4")]:
                         f.unlink()
         if not changed:
             checkpoints = {**old.get("checkpoints", {}), **checkpoints}
     suite_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(cfg_file, json.dumps({**settings, "checkpoints": checkpoints}, indent=1) + "\n")
     remove_temps(suite_dir)
-    # The first --record environments of the suite (in suite order) are recorded as MCAP.
+    # The first --record environments of the suite (in suite order) are recorded as MCAP; --video K
+    # films K environments across the groups (in their batches: a video changes no result).
     tasks = plan_jobs(envs, cfg.controllers, suite_dir, cfg.record)
+    filmed = frozenset(e.key for e in video_envs(envs, cfg.video))
     total = len(envs) * len(cfg.controllers)
     pending = sum(len(es) for _, es, _ in tasks)
     workers = cfg.workers or os.cpu_count() or 1
@@ -318,11 +353,11 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
         task = bar.add_task(suite, total=total, completed=total - pending)
         if workers == 1:
             for c, es, rec in tasks:
-                bar.advance(task, run_task(cfg, c, es, suite_dir, rec))
+                bar.advance(task, run_task(cfg, c, es, suite_dir, rec, filmed))
         else:
             os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             with mp.get_context("spawn").Pool(workers, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
-                for n in pool.imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec) for c, es, rec in tasks]):
+                for n in pool.imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec, filmed) for c, es, rec in tasks]):
                     bar.advance(task, n)
     write_tables(envs, cfg, suite_dir)
     from .report import write_report
@@ -364,10 +399,5 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     ctab = pa.table({k: pa.array(np.concatenate([np.asarray(x) for x in v]), type=types.get(k)) for k, v in curves.items()})
     rtab = pa.table({k: pa.array(v, type=types.get(k)) for k, v in results.items()})
     for name, tab in (("curves", ctab), ("results", rtab)):
-        tmp = temp_path(suite_dir / f"{name}.parquet")
-        try:
+        with atomic_path(suite_dir / f"{name}.parquet", fsync=False) as tmp:
             pq.write_table(tab, tmp, compression="zstd")
-            os.replace(tmp, suite_dir / f"{name}.parquet")
-        except OSError as e:
-            tmp.unlink(missing_ok=True)
-            raise named(e, suite_dir / f"{name}.parquet") from None

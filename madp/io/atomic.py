@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import os
 import re
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 #: Matches (as a glob) every temporary file this module names; :func:`is_temp` is the exact test.
 TMP_GLOB = "*.tmp*"
@@ -37,17 +39,25 @@ def named(err: OSError, path: str | os.PathLike) -> OSError:
     return err
 
 
-def write_text_atomic(path: str | os.PathLike, text: str, fsync: bool = True) -> Path:
-    """Write ``text`` to ``path`` atomically (temporary sibling, fsync, rename); create parents."""
+@contextmanager
+def atomic_path(path: str | os.PathLike, ext: str = "", fsync: bool = True) -> Iterator[Path]:
+    """Yield ``path``'s temporary sibling (:func:`temp_path`) for the caller to write; when the block
+    ends normally, fsync it (unless ``fsync`` is False) and rename it over ``path``. On any error the
+    temporary file is removed and an OSError names ``path`` (:func:`named`).
+
+        with atomic_path(out, ".mp4") as tmp:
+            writer_that_insists_on_a_suffix(tmp)
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_path(path)
+    tmp = temp_path(path, ext)
     try:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            if fsync:
-                os.fsync(f.fileno())
+        yield tmp
+        if fsync:
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
         os.replace(tmp, path)
     except OSError as e:
         tmp.unlink(missing_ok=True)
@@ -55,6 +65,17 @@ def write_text_atomic(path: str | os.PathLike, text: str, fsync: bool = True) ->
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, fsync: bool = True) -> Path:
+    """Write ``text`` to ``path`` atomically (temporary sibling, fsync, rename); create parents."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, fsync=False) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as f:
+        f.write(text)
+        f.flush()
+        if fsync:
+            os.fsync(f.fileno())
     return path
 
 

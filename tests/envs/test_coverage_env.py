@@ -68,6 +68,37 @@ def test_render_frame():
     assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 3
 
 
+def test_render_is_the_video_frame():
+    """Both envs' render() at step t is frame t of the rollout's video: one renderer, with the trails
+    since the reset, the step and J(t)/J(0)."""
+    import gymnasium
+
+    from madp.controllers import make_controller
+    from madp.video import rollout_frames
+
+    scenario = Scenario.random(3, SMALL)
+    pz = coverage_v0.parallel_env(scenario=scenario, max_steps=6, render_mode="rgb_array", render_size=64)
+    gym = gymnasium.make("madp/Coverage-v0", scenario=scenario, max_steps=6, render_mode="rgb_array", render_size=64)
+    pz.reset(seed=0)
+    gym.reset(seed=0)
+    dcvt = make_controller("dcvt")
+    frames, positions, costs = [pz.render()], [pz.state()], [1.0]
+    while pz.agents:
+        _, _, _, _, infos = pz.step(pz.actions_from(dcvt))
+        gym.step(gym.unwrapped.action_from(dcvt))
+        frames.append(pz.render())
+        positions.append(pz.state())
+        costs.append(infos["robot_0"]["normalized_cost"])
+    np.testing.assert_array_equal(gym.render(), frames[-1])
+    video = list(rollout_frames(pz.sim.world_map, np.stack(positions), np.array(costs), 64))
+    assert len(video) == len(frames) == 7
+    for got, want in zip(frames, video):
+        np.testing.assert_array_equal(got, want)
+    assert (frames[-1] != frames[0]).any()
+    pz.reset(seed=0)
+    np.testing.assert_array_equal(pz.render(), frames[0])  # a reset clears the trails
+
+
 def test_gymnasium_checker():
     import gymnasium
     from gymnasium.utils.env_checker import check_env
@@ -100,6 +131,14 @@ def test_env_driven_by_a_controller_matches_madp_eval(name):
     spec, steps = EnvSpec("uniform", "uniform", 0, SMALL), 3
     reference = rollout(CoverageEnv(spec.scenario()),
                         eval_controller(name, EvalConfig(suite="uniform", madp=str(shipped_checkpoint("madp"))), spec), steps)
+    np.testing.assert_array_equal(env_costs(name, spec, steps), reference.normalized_cost)
+
+
+def env_costs(name: str, spec, steps: int) -> list[float]:
+    """J(t)/J(0), t = 0..steps, of the PettingZoo env on ``spec`` driven by controller ``name`` (the
+    shipped checkpoint; MADP's noise seeded by the scenario's seed, as madp eval does)."""
+    from madp.controllers import make_controller
+
     pz = coverage_v0.parallel_env(scenario=spec, max_steps=steps)
     pz.reset(seed=0)
     policy = make_controller(name, seed=spec.seed)
@@ -107,4 +146,53 @@ def test_env_driven_by_a_controller_matches_madp_eval(name):
     while pz.agents:
         _, _, _, _, infos = pz.step(pz.actions_from(policy))
         costs.append(infos["robot_0"]["normalized_cost"])
-    np.testing.assert_array_equal(costs, reference.normalized_cost)
+    return costs
+
+
+def shipped_madp_on_cities(tmp_path, steps: int):
+    """The shipped MADP (decentralized, default sampler) on the first ``cities`` environment for
+    ``steps`` steps, by ``madp eval`` and by the env: (eval's J(t)/J(0) curve, the env's, the spec)."""
+    import pyarrow.parquet as pq
+
+    from madp.eval.runner import EvalConfig, run_suite
+    from madp.eval.suites import suite_envs
+    from madp.policies import shipped_checkpoint
+
+    if shipped_checkpoint("madp") is None:
+        pytest.skip("no shipped MADP checkpoint in this install")
+    spec = suite_envs("cities", 1)[0]
+    cfg = EvalConfig(suite="cities", out=str(tmp_path), num_envs=1, steps=steps, controllers=("madp",), workers=1,
+                     madp=str(shipped_checkpoint("madp")))
+    run_suite(cfg, "cities", progress=False)
+    curves = pq.read_table(tmp_path / "cities" / "curves.parquet").to_pandas()
+    evaluated = curves[(curves.group == spec.group) & (curves.controller == "madp")].sort_values("step").cost.to_numpy()
+    return evaluated, np.array(env_costs("madp", spec, steps)), spec
+
+
+def test_shipped_madp_env_matches_madp_eval_on_a_city(tmp_path):
+    """``madp eval`` and the env driven by the shipped MADP (decentralized): the same J(t)/J(0) curve on a
+    full-size ``cities`` environment (the 600-step run of the done-when is the slow test below)."""
+    evaluated, env, _ = shipped_madp_on_cities(tmp_path, 20)
+    assert len(evaluated) == 21
+    np.testing.assert_array_equal(env, evaluated)
+
+
+@pytest.mark.slow
+def test_shipped_madp_600_steps_env_eval_and_rollout_agree(tmp_path):
+    """Issue 16's done-when: the env driven by the shipped MADP for 600 steps gives madp eval's
+    J(600)/J(0) for that scenario (same seed), and so does ``madp rollout`` on the scenario as a file."""
+    import json
+    import subprocess
+    import sys
+
+    evaluated, env, spec = shipped_madp_on_cities(tmp_path, 600)
+    np.testing.assert_array_equal(env, evaluated)
+    scenario_file = tmp_path / "city.json"
+    spec.scenario().save(scenario_file)
+    out = tmp_path / "rollout.json"
+    r = subprocess.run([sys.executable, "-m", "madp.cli", "rollout", "--scenario", str(scenario_file), "--controller",
+                        "madp", "--steps", "600", "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    rolled = json.loads(out.read_text())["cost"]
+    print(f"{spec.group}: J(600)/J(0) eval {evaluated[-1]!r}, env {env[-1]!r}, rollout {rolled[-1]!r}")
+    assert rolled[-1] == env[-1]
