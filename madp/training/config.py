@@ -39,6 +39,7 @@ class TrainConfig:
     min_delta: float = 1e-4
     seed: int = 0
     num_workers: int = 1  # DataLoader worker processes per rank
+    grad_accum: int = 1  # micro-batches per optimizer step (gradients averaged, as DDP averages over ranks)
     buffer_size: int = 512  # shuffle buffer (samples) per stream
     val_samples: int = 1024  # validation uses the first samples of the val split (fixed order)
     checkpoint_every: int = 200  # steps between 'latest' checkpoints (and at every epoch end)
@@ -54,7 +55,8 @@ class TrainConfig:
             raise ValueError(f"--model: expected madp or lpac, got {self.model!r}")
         if self.preset not in ("paper", "cpu"):
             raise ValueError(f"--preset: expected paper or cpu, got {self.preset!r}")
-        for name in ("epochs", "batch_size", "checkpoint_every", "val_samples", "log_every", "buffer_size", "patience"):
+        for name in ("epochs", "batch_size", "checkpoint_every", "val_samples", "log_every", "buffer_size", "patience",
+                     "grad_accum"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')}: expected a positive integer, got {getattr(self, name)}")
         for name in ("max_steps_per_epoch", "num_workers", "stop_after_steps", "seed", "warmup_steps"):

@@ -72,14 +72,35 @@ def step_generator(seed: int, step: int, device: torch.device, stream: int = 0) 
     return g
 
 
-def batch_loss(model, raw, batch: dict, cfg: TrainConfig, generator: torch.Generator, device) -> torch.Tensor:
+def step_noise(raw, generator: torch.Generator, batch: dict, parts: int) -> tuple:
+    """The diffusion steps ``k [P, B]`` and noise ``[P, B, N, 2]`` of one optimizer step's global batch.
+
+    The global batch is ``parts`` = ranks x micro-batches pieces of ``B`` samples; one draw covers it
+    (``k`` for all, then the noise for all) and each piece takes its slice, so a sample's noise
+    depends on its place in the global batch, not on how many processes share it: ``torchrun
+    --nproc_per_node R`` equals one process with ``--grad-accum R`` and R times the loader workers.
+    With one part this is exactly what ``MADP.loss`` would draw itself."""
+    b, n = batch["actions"].shape[:2]
+    device = batch_device(raw)
+    k = raw.schedule.sample_timesteps(b * parts, device, generator)
+    noise = torch.randn((b * parts, n, raw.config.action_dim), generator=generator, device=device, dtype=raw.dtype)
+    return k.view(parts, b), noise.view(parts, b, n, -1)
+
+
+def batch_device(model: torch.nn.Module) -> torch.device:
+    return next(model.parameters()).device
+
+
+def batch_loss(model, raw, batch: dict, cfg: TrainConfig, draws: tuple | None, device) -> torch.Tensor:
+    """The loss of one micro-batch; ``draws`` = :func:`step_noise` (MADP) or None (LPAC-K3)."""
     obs = batch["obs"].to(device, non_blocking=True)
     pos = batch["pos_m"].to(device, non_blocking=True)
     act = raw.normalize_actions(batch["actions"].to(device, non_blocking=True))
     autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else nullcontext()
     with autocast:
         if cfg.model == "madp":
-            return model(obs, pos, act, None, generator)  # forward = DDPM loss (through DDP if wrapped)
+            k, noise = draws
+            return model(obs, pos, act, None, None, k, noise)  # forward = DDPM loss (through DDP if wrapped)
         return torch.nn.functional.mse_loss(model(obs, pos).float(), act)
 
 
@@ -288,8 +309,12 @@ class Trainer:
         with ctx:
             for i, batch in enumerate(self._val_batches()):
                 g = step_generator(self.cfg.seed, i, self.device, stream=1)
+                draws = None
+                if self.cfg.model == "madp":
+                    k, noise = step_noise(self.raw, g, batch, 1)
+                    draws = (k[0], noise[0])
                 b = batch["obs"].shape[0]
-                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, g, self.device)) * b
+                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, draws, self.device)) * b
                 n += b
         self.raw.train()
         return total / max(n, 1)
@@ -311,13 +336,16 @@ class Trainer:
 
     # ---- training
     def _epoch_batches(self, epoch: int) -> int:
+        """Micro-batches this rank trains on in ``epoch``: whole optimizer steps of ``grad_accum`` each."""
         cfg = self.cfg
         batches = self.train_data.samples_per_stream(cfg.num_workers, epoch) * max(cfg.num_workers, 1) // cfg.batch_size
-        return min(batches, cfg.max_steps_per_epoch) if cfg.max_steps_per_epoch else batches
+        steps = batches // cfg.grad_accum
+        steps = min(steps, cfg.max_steps_per_epoch) if cfg.max_steps_per_epoch else steps
+        return steps * cfg.grad_accum
 
     def planned_steps(self) -> int:
         """Updates in the whole run if it is not stopped early (the horizon of the lr schedule)."""
-        return sum(self._epoch_batches(e) for e in range(self.cfg.epochs))
+        return sum(self._epoch_batches(e) for e in range(self.cfg.epochs)) // self.cfg.grad_accum
 
     def fit(self) -> dict:
         cfg = self.cfg
@@ -329,34 +357,48 @@ class Trainer:
             batches = self._epoch_batches(self.epoch)
             # Round-robin over workers: batch b comes from worker b % W, its (b // W)-th batch.
             w = max(cfg.num_workers, 1)
+            accum = cfg.grad_accum
+            unit = math.lcm(w, accum)  # checkpoints fall where a worker round and an optimizer step both end
             done_per_worker = -(-self.batches_done // w)  # workers advance in lockstep (equal counts)
-            if self.batches_done % w:
-                raise RuntimeError("checkpoint position is not at a worker round boundary")
+            if self.batches_done % unit:
+                raise RuntimeError("checkpoint position is not at a worker round and optimizer step boundary")
             self.train_data.set_position(StreamPosition(self.epoch, done_per_worker * cfg.batch_size))
             loader = DataLoader(self.train_data, batch_size=cfg.batch_size, num_workers=cfg.num_workers,
                                 pin_memory=self.device.type == "cuda", persistent_workers=False)
             bar = _bar(self.progress, batches, self.batches_done, f"epoch {self.epoch + 1}/{cfg.epochs}")
-            t_last, seen = time.perf_counter(), 0
+            t_last, seen, loss_sum = time.perf_counter(), 0, 0.0
             for batch in loader:
                 if self.batches_done >= batches:
                     break
-                g = step_generator(cfg.seed, self.step, self.device, stream=0 if self.world == 1 else 2 + self.rank)
-                loss = batch_loss(self.model, self.raw, batch, cfg, g, self.device)
+                micro = self.batches_done % accum
+                if micro == 0:  # a new optimizer step
+                    g = step_generator(cfg.seed, self.step, self.device, stream=0)
+                    step_draws = step_noise(self.raw, g, batch, self.world * accum) if cfg.model == "madp" else None
+                    self.opt.zero_grad(set_to_none=True)
+                    loss_sum = 0.0
+                part = self.rank * accum + micro
+                draws = None if step_draws is None else (step_draws[0][part], step_draws[1][part])
+                last = micro == accum - 1
+                sync = self.model.no_sync() if self.world > 1 and not last else nullcontext()
+                with sync:  # DDP averages the gradients over ranks at the step's last micro-batch
+                    loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device)
+                    (loss / accum).backward()
+                self.batches_done += 1
+                seen += batch["obs"].shape[0] * self.world
+                if self.world > 1:
+                    self.seen_ids.update(zip(batch["episode_id"].tolist(), batch["step"].tolist()))
+                loss_sum += float(loss.detach())
+                if not last:
+                    continue
                 for group in self.opt.param_groups:
                     group["lr"] = learning_rate(cfg, self.step, total_steps)
-                self.opt.zero_grad(set_to_none=True)
-                loss.backward()
                 if cfg.grad_clip:
                     torch.nn.utils.clip_grad_norm_(self.raw.parameters(), cfg.grad_clip)
                 self.opt.step()
                 if self.ema is not None:
                     self.ema.update(self.raw)
                 self.step += 1
-                self.batches_done += 1
-                seen += batch["obs"].shape[0] * self.world
-                if self.world > 1:
-                    self.seen_ids.update(zip(batch["episode_id"].tolist(), batch["step"].tolist()))
-                loss_v = float(loss.detach())
+                loss_v = loss_sum / accum
                 if not math.isfinite(loss_v):
                     raise FloatingPointError(f"training loss became {loss_v} at step {self.step}")
                 if self.step % cfg.log_every == 0 or self.batches_done == batches:
@@ -366,9 +408,9 @@ class Trainer:
                                "lr": self.opt.param_groups[0]["lr"], "samples_per_s": rate})
                     t_last, seen = now, 0
                     bar.update(self.batches_done, loss_v, rate)
-                if self.batches_done % (cfg.checkpoint_every * w) == 0:
+                if self.batches_done % (cfg.checkpoint_every * unit) == 0:
                     self._save("latest")
-                if cfg.stop_after_steps and self.step >= cfg.stop_after_steps and self.batches_done % w == 0:
+                if cfg.stop_after_steps and self.step >= cfg.stop_after_steps and self.batches_done % unit == 0:
                     self._save("latest")
                     bar.close()
                     return {"stopped": "stop_after_steps", "step": self.step}
