@@ -209,9 +209,10 @@ class MADP(ActionStatsMixin):
         return (err * w).sum() / (w.sum() * err.shape[-1]).clamp_min(1)
 
     def forward(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None,
-                generator: torch.Generator | None = None) -> Tensor:
+                generator: torch.Generator | None = None, k: Tensor | None = None,
+                noise: Tensor | None = None) -> Tensor:
         """Training loss (see :meth:`loss`); ``forward`` so that DDP/compile wrappers see it."""
-        return self.loss(obs, pos_m, actions_norm, valid, generator)
+        return self.loss(obs, pos_m, actions_norm, valid, generator, k, noise)
 
     # ----------------------------------------------------------------------------------- sampling
     def _sample_loop(self, memory: Tensor, pos_m: Tensor, mask: Tensor, x: Tensor, sampler,
