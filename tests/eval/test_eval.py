@@ -1,8 +1,6 @@
 """madp eval: suites, identical environments, learned policies, resume, outputs and errors."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -15,6 +13,7 @@ from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
 from madp.models import LPAC, MADP, lpac_config, madp_config
 from madp.training.checkpoint import save_policy
 from tests.eval.conftest import META
+from tests.test_reliability_errors import assert_one_line, cli
 
 
 def test_suites_are_seeded_apart_from_datasets():
@@ -111,22 +110,16 @@ def test_new_checkpoint_reruns_only_its_controllers(tmp_path, checkpoints):
 
 
 def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
+    """In this process (as ``madp`` runs them): exit 2, one line naming the flag or file."""
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "madp.cli", "eval", "--out", str(tmp_path), "--num-envs", "1",
-                               "--steps", "2", *args], capture_output=True, text=True)
+        return cli("eval", "--out", tmp_path, "--num-envs", 1, "--steps", 2, *args)
 
-    r = run("--controllers", "madp", "--madp", str(tmp_path / "missing.safetensors"))
-    assert r.returncode == 2 and "missing.safetensors" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    r = run("--controllers", "madp", "--madp", str(checkpoints / "lpac.safetensors"))
-    assert r.returncode == 2 and "expected madp" in r.stderr
-    r = run("--suite", "moon")
-    assert r.returncode == 2 and "--suite" in r.stderr
-    r = run("--controllers", "dcvt,foo")
-    assert r.returncode == 2 and "foo" in r.stderr
-    r = run("--controllers", "dcvt", "--sampler", "euler")
-    assert r.returncode == 2 and "--sampler" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    r = run("--controllers", "dcvt", "--sampler", "dpm++", "--eta", "0.5")
-    assert r.returncode == 2 and "deterministic" in r.stderr
+    assert_one_line(*run("--controllers", "madp", "--madp", tmp_path / "missing.safetensors"), "missing.safetensors")
+    assert_one_line(*run("--controllers", "madp", "--madp", checkpoints / "lpac.safetensors"), "expected madp")
+    assert_one_line(*run("--suite", "moon"), "--suite")
+    assert_one_line(*run("--controllers", "dcvt,foo"), "foo")
+    assert_one_line(*run("--controllers", "dcvt", "--sampler", "euler"), "--sampler")
+    assert_one_line(*run("--controllers", "dcvt", "--sampler", "dpm++", "--eta", "0.5"), "deterministic")
 
 
 @pytest.mark.parametrize("controller,sampler,eta,fixed", [("lpac", "ddim", 0.0, False), ("madp_central", "ddim", 0.5, False),
