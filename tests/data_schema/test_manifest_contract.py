@@ -140,6 +140,10 @@ def test_action_stats_refusals(d, message):
     assert got == f"m.json: action_stats{sep}{message}"
 
 
+def test_action_stats_errors_name_action_stats_by_default():
+    assert _message(ActionStats.from_dict, {}) == "action_stats: expected an object with keys count, mean, std"
+
+
 def test_action_stats_accepts_zero_std_and_count_one():
     """Boundaries: std 0 (degenerate data) and a count of 1 are valid."""
     s = ActionStats.from_dict({"count": 1, "mean": [0, 0], "std": [0.0, 0.25]})
@@ -167,6 +171,7 @@ def test_req_messages():
         (_shard(sha256=_HEX[:-1]), "s.sha256: expected 64 lowercase hex digits"),
         (_shard(sha256=_HEX[:-1] + "g"), "s.sha256: expected 64 lowercase hex digits"),
         (_shard(sha256=_HEX.upper()), "s.sha256: expected 64 lowercase hex digits"),
+        (_shard(sha256=_HEX[:-1] + "X"), "s.sha256: expected 64 lowercase hex digits"),
         (_shard(file=""), "s.file: expected a relative '/'-separated path inside the dataset, got ''"),
         (_shard(file="/abs.mcap"), "s.file: expected a relative '/'-separated path inside the dataset, got '/abs.mcap'"),
         (_shard(file="a\\b.mcap"), "s.file: expected a relative '/'-separated path inside the dataset, got 'a\\\\b.mcap'"),

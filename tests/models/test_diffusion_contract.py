@@ -121,6 +121,13 @@ def test_set_timesteps_resets_the_successor_table():
     assert sched.previous_timestep(1000) == 980
 
 
+def test_defaults():
+    """The paper's K = 1000 by default, and no subsequence before ``set_timesteps``."""
+    sched = DDPMSchedule()
+    assert (sched.num_train_steps, sched.beta_start, sched.beta_end) == (1000, 1e-4, 0.02)
+    assert sched.timesteps is None
+
+
 def test_errors_say_what_was_expected():
     """Guards the messages and conditions of every refusal; K = 1 and k_0 = 0 are valid."""
     with pytest.raises(ValueError, match=r"^num_train_steps must be >= 1$"):

@@ -109,6 +109,54 @@ def test_loss_is_the_masked_mean_squared_noise_error(gen):
                               (eps_all - noise).square().mean(), rtol=1e-5)
 
 
+def test_config_reaches_every_part():
+    """Non-default settings reach the parts that use them (guards ``MADP.__init__`` dropping an
+    argument, which the default config cannot tell apart: leaky slope of the CNN, the transformers and
+    the time embedding, RoPE's tau, RoPE in how many layers, the schedule's beta range)."""
+    cfg = tiny_madp_config(leaky_slope=0.2, rope_tau=300.0, rope_layers=2, beta_start=2e-4, beta_end=0.03)
+    model = MADP(cfg)
+    slopes = {m.negative_slope for m in model.modules() if isinstance(m, torch.nn.LeakyReLU)}
+    assert slopes == {0.2}
+    assert model.rope.tau == 300.0
+    for stack in (model.encoder, model.decoder):
+        assert [layer.use_rope for layer in stack.layers] == [True, True]
+    assert (model.schedule.beta_start, model.schedule.beta_end) == (2e-4, 0.03)
+    assert TimestepEmbedding(8, 4).mlp[1].negative_slope == 0.01  # the default slope
+
+
+def test_a_float64_model_computes_in_float64(gen):
+    """``model.double()`` takes float32 inputs and computes in float64 throughout, close to the float32
+    model (guards every cast to the model's dtype: observations, actions, noise, RoPE, the bias)."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config()).eval()
+    b, n = 2, 5
+    obs = random_obs(b, n, generator=gen)
+    pos = grid_positions(b * n, 0, 400, gen).view(b, n, 2)
+    act = torch.randn(b, n, 2, generator=gen)
+    valid = torch.ones(b, n, dtype=torch.bool)
+    valid[1, 4] = False
+    u_k = torch.randn(b, n, 2, generator=gen)
+
+    def outputs() -> dict:
+        memory, mask = model.encode(obs, pos, valid)
+        k, noise = torch.tensor([5, 600]), torch.randn(b, n, 2, generator=torch.Generator().manual_seed(1))
+        return {
+            "memory": memory,
+            "eps": model.denoise(act, 7, memory, pos, mask, valid),
+            "loss": model.loss(obs, pos, act, valid, k=k, noise=noise),
+            "sample": model.sample(obs, pos, 3, 0.0, valid=valid, noise=u_k, sampler="dpm++"),
+            "dec": model.sample_decentralized(obs[0], pos[0], 3, 0.0, noise=u_k[0], sampler="ddim"),
+        }
+
+    with torch.no_grad():
+        want = outputs()
+        model.double()
+        got = outputs()
+    for key in want:
+        assert got[key].dtype == torch.float64, key
+        assert torch.allclose(got[key].float(), want[key], atol=2e-4), key
+
+
 # ---------------------------------------------------------------- pinned wiring (characterization)
 
 
