@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import copy
 import json
+import locale
 import os
+import sys
 
 import numpy as np
 import pytest
@@ -260,6 +262,24 @@ def test_manifest_load_names_the_file(tmp_path):
     assert _message(Manifest.load, path) == f"{path}: not UTF-8 text (byte 7); expected a JSON manifest"
     missing = tmp_path / "nowhere" / "manifest.json"
     assert _message(Manifest.load, missing) == f"{missing}: cannot read manifest (No such file or directory)"
+
+
+def test_manifest_is_read_as_utf8_whatever_the_locale(tmp_path):
+    """A manifest is UTF-8 JSON, also in a C (ASCII) locale (guards ``read_text(encoding=None)``; in
+    Python's UTF-8 mode both read UTF-8 and the test cannot tell them apart)."""
+    d = _manifest_dict()
+    d["created_by"] = "madp datagen --out Zürich"
+    path = tmp_path / "manifest.json"
+    path.write_bytes(json.dumps(d, ensure_ascii=False).encode("utf-8"))
+    before = locale.setlocale(locale.LC_CTYPE)
+    try:
+        locale.setlocale(locale.LC_CTYPE, "C")
+        if not sys.flags.utf8_mode:
+            assert locale.getpreferredencoding(False) != "UTF-8"
+        m = Manifest.load(path)
+    finally:
+        locale.setlocale(locale.LC_CTYPE, before)
+    assert m.created_by == "madp datagen --out Zürich"
 
 
 def _write(path, d) -> str:

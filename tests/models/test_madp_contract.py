@@ -157,6 +157,22 @@ def test_a_float64_model_computes_in_float64(gen):
         assert torch.allclose(got[key].float(), want[key], atol=2e-4), key
 
 
+def test_loss_draws_k_then_noise_in_the_models_dtype(gen):
+    """With a generator, ``loss`` draws ``k [B]`` then the noise ``[B, N, 2]`` in the model's dtype (a
+    float64 model draws float64 noise: another stream of numbers than float32)."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config()).double().eval()
+    obs = random_obs(2, 4, generator=gen)
+    pos = grid_positions(8, 0, 300, gen).view(2, 4, 2)
+    act = torch.randn(2, 4, 2, generator=gen)
+    g = torch.Generator().manual_seed(4)
+    k = model.schedule.sample_timesteps(2, generator=g)
+    noise = torch.randn(2, 4, 2, generator=g, dtype=torch.float64)
+    with torch.no_grad():
+        assert torch.equal(model.loss(obs, pos, act, generator=torch.Generator().manual_seed(4)),
+                           model.loss(obs, pos, act, k=k, noise=noise))
+
+
 # ---------------------------------------------------------------- pinned wiring (characterization)
 
 
