@@ -173,6 +173,27 @@ def test_loss_draws_k_then_noise_in_the_models_dtype(gen):
                            model.loss(obs, pos, act, k=k, noise=noise))
 
 
+def test_a_float64_model_is_shift_invariant_to_float64_precision(gen):
+    """RoPE depends on relative positions only, so moving the whole swarm by an exact offset leaves a
+    float64 model's output unchanged to ~1e-12 — if RoPE's cos/sin reach it in float64 (guards
+    ``self.rope(pos_m, self.dtype)`` losing its dtype: float32 tables move the output by ~1e-7)."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config(rope_layers=2)).double().eval()
+    obs = random_obs(1, 8, generator=gen)
+    pos = grid_positions(8, 100, 500, gen).view(1, 8, 2)
+    shift = torch.tensor([123.0, -77.0])
+    act = torch.randn(1, 8, 2, generator=gen)
+    u_k = torch.randn(1, 8, 2, generator=gen)
+    with torch.no_grad():
+        def run(p):
+            memory, mask = model.encode(obs, p)
+            return (model.denoise(act, 40, memory, p, mask),
+                    model.sample(obs, p, 3, 0.0, noise=u_k, sampler="dpm++"),
+                    model.sample_decentralized(obs[0], p[0], 3, 0.0, noise=u_k[0], sampler="ddim"))
+        for a, b in zip(run(pos), run(pos + shift)):
+            assert (a - b).abs().max() < 1e-10
+
+
 # ---------------------------------------------------------------- pinned wiring (characterization)
 
 
