@@ -126,3 +126,15 @@ def damage(data: st.DataObject, blob: bytes) -> bytes:
     if op == "empty-tail":
         return bytes(b[: len(b) // 2]) + bytes(len(b) - len(b) // 2)
     return data.draw(st.binary(max_size=4096))
+
+
+def load_damaged_file(tmp_path_factory, data: st.DataObject, name: str, blob: bytes, load: Callable,
+                      error: type) -> None:
+    """Write ``blob`` damaged (:func:`damage`) to a file and ``load`` it: it loads, or refuses with
+    ``error`` in one line that names the file."""
+    path = tmp_path_factory.getbasetemp() / name
+    path.write_bytes(damage(data, blob))
+    try:
+        load(path)
+    except error as e:
+        assert "\n" not in str(e) and str(path) in str(e)

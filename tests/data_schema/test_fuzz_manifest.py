@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from madp.data_schema import ActionStats, DataError, Manifest, ShardInfo, SplitInfo
 
-from ..fuzzing import JSON, damage, mutate, twins
+from ..fuzzing import JSON, load_damaged_file, mutate, twins
 
 
 def valid_manifest() -> dict:
@@ -49,12 +49,8 @@ def prop_mutated(data):
 
 
 def prop_damaged_file(tmp_path_factory, data):
-    path = tmp_path_factory.getbasetemp() / "fuzz-manifest.json"
-    path.write_bytes(damage(data, json.dumps(VALID, indent=2).encode()))
-    try:
-        Manifest.load(path)
-    except DataError as e:
-        assert "\n" not in str(e) and str(path) in str(e)
+    load_damaged_file(tmp_path_factory, data, "fuzz-manifest.json", json.dumps(VALID, indent=2).encode(),
+                      Manifest.load, DataError)
 
 
 test_any_json_manifest, test_any_json_manifest_soak = twins(prop_any_json, 150, 3000, doc=JSON)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from madp.sim import Scenario, params
 from madp.sim.scenario import ScenarioError
 
-from ..fuzzing import JSON, damage, mutate, twins
+from ..fuzzing import JSON, load_damaged_file, mutate, twins
 
 #: A valid scenario on a small world (its importance map is cheap to build).
 VALID = {"features": [{"mean": [100.0, 120.0], "sigma": 40.0, "peak": 0.8}, {"mean": [200, 30], "sigma": 50, "peak": 1}],
@@ -45,12 +45,8 @@ def prop_mutated_scenario(data):
 
 
 def prop_damaged_file(tmp_path_factory, data):
-    path = tmp_path_factory.getbasetemp() / "fuzz-scenario.json"
-    path.write_bytes(damage(data, json.dumps(VALID).encode()))
-    try:
-        Scenario.load(path)
-    except ScenarioError as e:
-        assert "\n" not in str(e) and str(path) in str(e)
+    load_damaged_file(tmp_path_factory, data, "fuzz-scenario.json", json.dumps(VALID).encode(), Scenario.load,
+                      ScenarioError)
 
 
 test_any_json_document, test_any_json_document_soak = twins(prop_any_json, 150, 3000, doc=JSON)
