@@ -1,14 +1,13 @@
 """madp bench infer: the closed-loop sweep, S*, the plot and the latency rows (structure, not speed)."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from madp.eval.bench import bench_infer_all, parse_grid
+from tests.test_reliability_errors import assert_one_line, cli
 
 
 def test_parse_grid_always_adds_the_ddim50_baseline():
@@ -51,6 +50,4 @@ def test_sweep_s_star_plot_and_latency(tmp_path, checkpoints):
 
 
 def test_bench_infer_cli_bad_grid_is_one_line(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "madp.cli", "bench", "infer", "--grid", "euler:3",
-                        "--sweep-out", str(tmp_path)], capture_output=True, text=True)
-    assert r.returncode == 2 and "--grid" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert_one_line(*cli("bench", "infer", "--grid", "euler:3", "--sweep-out", tmp_path), "--grid")
