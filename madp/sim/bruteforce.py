@@ -1,7 +1,7 @@
 """Brute-force Voronoi sums: assign every cell centre to its nearest robot, then sum.
 
-The obvious implementation, kept as the baseline that ``madp bench sim`` measures against and as an
-independent oracle in the tests. Chunked over columns so memory stays bounded; still O(W² · N).
+The obvious implementation, kept as an independent oracle in the tests (``madp bench sim`` measures
+madp against the Coverage Control Library itself). Chunked over columns so memory stays bounded; still O(W² · N).
 """
 
 from __future__ import annotations
