@@ -336,7 +336,7 @@ def scenario_import_cmd(
 @bench_app.command("sim")
 def bench_sim_cmd(
     scenarios: int = typer.Option(3, min=1, help="Random scenarios (seeds SEED, SEED+1, ...)."),
-    steps: int = typer.Option(30, min=10, help="Steps per scenario (>= 10) along each controller's trajectory."),
+    steps: int = typer.Option(20, min=10, help="Steps per scenario (>= 10) along each controller's trajectory."),
     seed: int = typer.Option(12345, help="Seed of the first scenario."),
     library: Optional[bool] = typer.Option(None, "--library/--no-library", help="Time the Coverage Control Library (madp[reference]) beside madp: default when it imports; --library requires it."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),

@@ -68,7 +68,7 @@ def _scenario_pass(pair: _Pair, sc: Scenario, steps: int, use_library: bool) -> 
         pair.time("dcvt_step", lambda: env.step(dcvt(env)), lib.step_dcvt if lib else None)
 
 
-def bench_sim(scenarios: int = 3, steps: int = 30, seed: int = 12345, library: bool | None = None,
+def bench_sim(scenarios: int = 3, steps: int = 20, seed: int = 12345, library: bool | None = None,
               progress: Callable[[int, int], None] | None = None) -> dict:
     """Time the four operations on ``scenarios`` random scenarios (seeds seed, seed+1, …) × ``steps``.
 
