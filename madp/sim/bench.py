@@ -5,12 +5,16 @@ from the same positions on the same features. Along the clairvoyant expert's tra
 times J, the observation tensor and the clairvoyant step; a second pass times the DCVT step along the
 DCVT trajectory. Every operation is timed on the library and on madp back to back, alternating which
 goes first, so machine load falls on both alike: the ratio of medians is fair on a busy machine even
-where the absolute milliseconds are not idle figures. Without the library (``madp[reference]``,
-see :mod:`madp.sim.reference`) only madp's figures are measured.
+where the absolute milliseconds are not idle figures. Both run on one thread (a per-core comparison, as
+datagen runs one worker per core): madp's numpy is single-threaded, the library's torch is set to one
+thread and its OpenMP runtime is capped by ``OMP_THREAD_LIMIT=1`` (unless set otherwise before it
+loads); uncapped, its DecentralizedCVT starts one thread per robot. Without the library
+(``madp[reference]``, see :mod:`madp.sim.reference`) only madp's figures are measured.
 """
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from typing import Callable
@@ -78,12 +82,13 @@ def bench_sim(scenarios: int = 3, steps: int = 20, seed: int = 12345, library: b
     "library_ms", "library_p90_ms", "ratio", "samples"}}}``: medians in ms; ``ratio`` = library median /
     madp median (None without the library).
     """
-    from .reference import import_library
+    from . import reference
 
     version, note = None, ""
     if library is not False:
+        os.environ.setdefault(reference.THREAD_LIMIT_ENV, "1")  # read when the library's OpenMP loads
         try:
-            version = import_library().__version__
+            version = reference.import_library().__version__
         except ImportError as e:
             if library:
                 raise
@@ -112,7 +117,7 @@ def bench_sim(scenarios: int = 3, steps: int = 20, seed: int = 12345, library: b
                      ratio=float(np.median(lib) / np.median(m)))
         ops[op] = r
     return {"library": version, "library_note": note, "scenarios": scenarios, "steps": steps, "seed": seed,
-            "operations": ops}
+            "library_thread_limit": reference.thread_limit_at_import if version else None, "operations": ops}
 
 
 def format_table(res: dict) -> list[str]:
@@ -124,7 +129,9 @@ def format_table(res: dict) -> list[str]:
                  f"{'what':<18}{'madp ms':>10}{'p90 ms':>9}"]
         lines += [f"{op:<18}{r['madp_ms']:>10.2f}{r['madp_p90_ms']:>9.2f}" for op, r in res["operations"].items()]
         return lines
-    lines = [head + f", interleaved with coverage_control {res['library']}",
+    limit = res["library_thread_limit"]
+    threads = "one thread each" if limit == "1" else f"library's OpenMP thread limit {limit or 'unset'}"
+    lines = [head + f", interleaved with coverage_control {res['library']} ({threads})",
              f"{'what':<18}{'library ms':>11}{'madp ms':>10}{'ratio':>8}"]
     lines += [f"{op:<18}{r['library_ms']:>11.2f}{r['madp_ms']:>10.2f}{r['ratio']:>7.1f}x"
               for op, r in res["operations"].items()]

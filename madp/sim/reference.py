@@ -30,6 +30,10 @@ import numpy as np
 from .scenario import Scenario
 
 _META = "torchvision._meta_registrations"
+THREAD_LIMIT_ENV = "OMP_THREAD_LIMIT"
+thread_limit_at_import: str | None = None
+"""``OMP_THREAD_LIMIT`` when the library was imported: its OpenMP runtime reads it once, at load. Its
+DecentralizedCVT asks for one thread per robot whatever ``OMP_NUM_THREADS`` says; only this caps it."""
 
 
 def _import_torchvision():
@@ -56,7 +60,9 @@ def import_library():
         return sys.modules["coverage_control"]
     if importlib.util.find_spec("coverage_control") is None:
         raise ImportError("coverage_control is not installed (pip install 'madp[reference]', see the README)")
+    global thread_limit_at_import
     try:
+        thread_limit_at_import = os.environ.get(THREAD_LIMIT_ENV)
         _import_torchvision()
         import coverage_control
         import coverage_control.algorithms  # noqa: F401
