@@ -33,9 +33,11 @@ class UserError(Exception):
 def _user_errors() -> tuple[type[BaseException], ...]:
     from madp.io.lock import DirectoryLocked
     from madp.io.owned import NotOwned
+    from madp.io.ray_backend import RayUnavailable
     from madp.sim.scenario import ScenarioError
 
-    errors: list[type[BaseException]] = [UserError, ScenarioError, ValueError, OSError, DirectoryLocked, NotOwned]
+    errors: list[type[BaseException]] = [UserError, ScenarioError, ValueError, OSError, DirectoryLocked, NotOwned,
+                                         RayUnavailable]
     try:
         from madp.data_schema import DataError
 
@@ -98,6 +100,16 @@ dataset_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Ins
 app.add_typer(dataset_app, name="dataset")
 
 
+#: ``--ray`` of datagen and eval; given alone, main() supplies ``local`` (madp.io.ray_backend.RAY_LOCAL).
+RAY_HELP = ("Run the tasks on Ray: alone, a Ray started on this machine; 'auto': the cluster running here "
+            "(ray start); HOST:PORT or ray://HOST:10001: that cluster. The output directory must be on a "
+            "filesystem every node sees. Never changes the results. Needs madp[ray].")
+
+
+def _ray_option(help: str = RAY_HELP):
+    return typer.Option(None, "--ray", metavar="[ADDRESS]", help=help)
+
+
 def _parse_shards(spec: Optional[str]) -> Optional[tuple[int, int]]:
     if spec is None:
         return None
@@ -127,6 +139,7 @@ def datagen(
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
+    ray: Optional[str] = _ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
     from madp.datagen import DatagenConfig, run_datagen
@@ -147,7 +160,7 @@ def datagen(
         raise ValueError("--beta: only meaningful with --policy")
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
                         policy=learner, max_steps=max_steps or (600 if policy is not None else 2100))
-    run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite)
+    run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite, ray=_ray_address(ray))
 
 
 @dataset_app.command("info")
@@ -278,6 +291,7 @@ def eval_cmd(
     cities: Optional[Path] = typer.Option(None, help="Directory of city files (default: the 40 cities shipped with madp)."),
     out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
     overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
+    ray: Optional[str] = _ray_option(),
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
@@ -296,7 +310,8 @@ def eval_cmd(
     check_sampler(sampler, sampling_steps, eta)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampler=sampler, sampling_steps=sampling_steps, eta=eta,
-                     fixed_noise=fixed_noise, workers=workers, record=record, video=video, cities=str(cities) if cities else None)
+                     fixed_noise=fixed_noise, workers=workers, ray=_ray_address(ray), record=record, video=video,
+                     cities=str(cities) if cities else None)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     skipped = [c for c in requested if c not in used]
     if skipped:
@@ -360,9 +375,11 @@ def bench_datagen_cmd(
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     format: str = typer.Option("mcap", "--format", help="mcap | parquet"),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
+    ray: Optional[str] = _ray_option("Measure the Ray backend's per-task overhead on this cluster ('auto', HOST:PORT) instead of a Ray started on this machine (measured whenever madp[ray] is installed)."),
 ) -> None:
-    """End-to-end datagen rate at N = F = 32 and the projected time for 100k samples."""
-    from madp.datagen.bench import bench_datagen
+    """End-to-end datagen rate at N = F = 32, the projected time for 100k samples, and the Ray backend's per-task overhead."""
+    from madp.datagen.bench import bench_datagen, bench_ray_overhead
+    from madp.io.ray_backend import RayUnavailable
 
     r = bench_datagen(n, workers, format)
     s = r["stages"]
@@ -373,6 +390,18 @@ def bench_datagen_cmd(
                f"{r['bytes_per_sample'] / 1e3:.1f} kB/sample")
     typer.echo(f"projected 100k samples: {r['projected_100k_min']:.1f} min "
                f"(library cost model: {r['library_projected_100k_h']:.1f} h)")
+    try:
+        r["ray"] = x = bench_ray_overhead(ray, fmt=format)
+    except RayUnavailable:
+        if ray is not None:
+            raise
+        r["ray"] = None
+        typer.echo('Ray backend: not measured (Ray is not installed; pip install "madp[ray]")')
+    else:
+        typer.echo(f"Ray backend ({x['address']}, {x['cpus']} CPUs; start {x['start_s']:.1f} s once per run): trivial task "
+                   f"round trip {x['trivial_task_ms']:.1f} ms (median of {x['trivial_tasks']}); one {x['shard_samples']}-sample "
+                   f"shard task {x['shard_ray_s']:.2f} s on Ray vs {x['shard_local_s']:.2f} s in this process "
+                   f"(medians of {x['repeats']}): {1e3 * x['shard_overhead_s']:+.0f} ms per task, {x['shard_ratio']:.3f}x")
     if out:
         _write_json(out, r)
 
@@ -482,12 +511,36 @@ def _fail(msg: str) -> None:
     sys.exit(2)
 
 
+def _ray_address(ray: Optional[str]) -> Optional[str]:
+    """The ``--ray`` value for the runners, checking first that Ray is installed (a one-line error)."""
+    if ray is not None:
+        from madp.io.ray_backend import import_ray
+
+        import_ray()
+    return ray
+
+
+def _optional_ray_value(args: List[str]) -> List[str]:
+    """``--ray`` followed by nothing or by another option means ``--ray local`` (click has no options
+    with an optional value)."""
+    from madp.io.ray_backend import RAY_LOCAL
+
+    out = list(args)
+    for i, a in enumerate(out):
+        if a == "--":
+            break
+        if a == "--ray" and (i + 1 == len(out) or out[i + 1].startswith("-")):
+            out.insert(i + 1, RAY_LOCAL)
+            break
+    return out
+
+
 def main(argv: Optional[List[str]] = None) -> None:
     """Entry point: run the app, turning user mistakes into one line and exit status 2.
 
     Bad flags and values (typer's range checks included) are click exceptions: printed as one line,
     not click's usage box. Running a group without arguments still prints its help."""
-    args = sys.argv[1:] if argv is None else argv
+    args = _optional_ray_value(sys.argv[1:] if argv is None else argv)
     cx = _click_exceptions()
     try:
         rv = app(args=args, prog_name="madp", standalone_mode=False)

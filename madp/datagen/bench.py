@@ -74,3 +74,55 @@ def real_episodes(num_samples: int = 512, seed: int = 0) -> list:
     """Real expert episodes (N = F = 32) holding ``num_samples`` samples, for the I/O benchmark."""
     cfg = DatagenConfig(num_samples, seed=seed)
     return list(shard_episodes(cfg, ShardTask("train", 0, num_samples)))
+
+
+def _noop(item):
+    return item
+
+
+def bench_ray_overhead(address: str | None = None, shard_samples: int = 128, repeats: int = 3, trivial: int = 20,
+                       fmt: str = "mcap", seed: int = 0) -> dict:
+    """Per-task overhead of the Ray backend (:mod:`madp.io.ray_backend`), measured in this run.
+
+    * the round trip of a trivial task through the backend (submit, wait, get), median of ``trivial``;
+    * one shard task of ``shard_samples`` samples (the datagen worker function, the same shard each
+      time) run in this process and as a Ray task, alternately, ``repeats`` times each: the medians,
+      their difference (the overhead per shard task) and their ratio.
+
+    Workers are warmed up first (one tiny shard task each), so imports are not counted; the time to
+    start or join Ray is reported on its own (a fixed cost per run)."""
+    from madp.io.ray_backend import import_ray, ray_imap_unordered, ray_session
+
+    from .runner import _worker
+
+    import_ray()
+    t0 = time.perf_counter()
+    with ray_session(address) as ray, tempfile.TemporaryDirectory() as d:
+        start_s = time.perf_counter() - t0
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        cfg = DatagenConfig(shard_samples, seed=seed, format=fmt, samples_per_shard=shard_samples).to_dict()
+        tiny = (DatagenConfig(8, seed=seed, format=fmt).to_dict(), ShardTask("train", 0, 8), str(Path(d) / "warm"))
+        list(ray_imap_unordered(_worker, [tiny] * max(cpus, 1), address))
+        _worker(tiny)
+        list(ray_imap_unordered(_noop, [0], address))
+        trips = []
+        for i in range(trivial):
+            t = time.perf_counter()
+            list(ray_imap_unordered(_noop, [i], address))
+            trips.append(time.perf_counter() - t)
+        task = ShardTask("train", 0, shard_samples)
+        local, remote = [], []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            a = _worker((cfg, task, str(Path(d) / "local")))
+            local.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            (b,) = ray_imap_unordered(_worker, [(cfg, task, str(Path(d) / "ray"))], address)
+            remote.append(time.perf_counter() - t)
+            if a != b:  # a bug, not a measurement
+                raise RuntimeError("a shard task made other bytes on Ray than in this process")
+    local_s, ray_s = float(np.median(local)), float(np.median(remote))
+    return {"address": address or "local", "cpus": cpus, "start_s": start_s,
+            "trivial_task_ms": float(np.median(trips) * 1e3), "trivial_tasks": trivial,
+            "shard_samples": shard_samples, "repeats": repeats, "shard_local_s": local_s, "shard_ray_s": ray_s,
+            "shard_overhead_s": ray_s - local_s, "shard_ratio": ray_s / local_s}

@@ -15,6 +15,11 @@ of the parent alone — the same command finishes with exactly the bytes of an u
 
 ``--overwrite`` removes only what madp wrote here (:func:`owned_files`); any other file makes it
 refuse, naming the file.
+
+``--ray``: the same shard tasks (the pool's :func:`_worker`) run as Ray tasks
+(:mod:`madp.io.ray_backend`), each writing its shard and record into the directory as above; the
+driver holds the lock, counts progress as tasks complete and writes the manifest. A task whose worker
+dies is run again by Ray; the temporary file the dead attempt left is removed at the end.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ from madp.data_schema.shard_io import check_shard
 from madp.io.atomic import remove_temps, temp_path, write_text_atomic
 from madp.io.lock import LOCK_FILENAME, locked_dir
 from madp.io.owned import clear_owned, foreign_files
+from madp.io.ray_backend import ray_imap_unordered
 from madp.io.workers import die_with_parent
 
 from .episodes import shard_episodes
@@ -97,8 +103,12 @@ def _init_worker(queue, parent_pid: int) -> None:
 
 
 def _worker(args) -> dict:
+    """One shard task in a worker process: the local pool's (progress through the queue) or a Ray
+    task's (no queue: the driver advances when the task completes)."""
     cfg_dict, task, root = args
     cfg = DatagenConfig.from_dict(cfg_dict)
+    if _queue is None:
+        return run_shard(cfg, task, Path(root)).to_dict()
     pending = [0]
 
     def tick():
@@ -190,9 +200,12 @@ def run_datagen(
     shards: Optional[tuple[int, int]] = None,
     overwrite: bool = False,
     progress: bool = True,
+    ray: Optional[str] = None,
 ) -> Optional[Manifest]:
     """Generate the dataset (or the part ``shards`` = (I, J) of its task list) into ``root``.
 
+    ``ray``: run the shard tasks on Ray instead of local worker processes (``"local"``, ``"auto"``
+    or a cluster address: :mod:`madp.io.ray_backend`); ``root`` must then be a path every node sees.
     Returns the manifest once every task of the plan is done (None for an incomplete part).
     """
     root = Path(root)
@@ -201,11 +214,11 @@ def run_datagen(
     if not (0 <= lo <= hi <= len(plan)):
         raise ValueError(f"--shards: expected I:J within 0:{len(plan)}, got {lo}:{hi}")
     with locked_dir(root):
-        return _run_locked(cfg, root, plan, lo, hi, workers, overwrite, progress)
+        return _run_locked(cfg, root, plan, lo, hi, workers, overwrite, progress, ray)
 
 
 def _run_locked(cfg: DatagenConfig, root: Path, plan: list[ShardTask], lo: int, hi: int, workers: int,
-                overwrite: bool, progress: bool) -> Optional[Manifest]:
+                overwrite: bool, progress: bool, ray: Optional[str] = None) -> Optional[Manifest]:
     prepare_dir(cfg, root, overwrite)
     selected = plan[lo:hi]
     done = load_records(root, selected)
@@ -216,7 +229,13 @@ def _run_locked(cfg: DatagenConfig, root: Path, plan: list[ShardTask], lo: int, 
     finished = sum(done[t].info.num_samples for t in done)
     t0 = time.perf_counter()
     with _Progress(total, finished, progress) as bar:
-        if workers == 1:
+        if ray is not None and todo:
+            for d in ray_imap_unordered(_worker, [(cfg.to_dict(), t, str(root)) for t in todo], ray):
+                rec = ShardRecord.from_dict(d, "ray task result")
+                done[rec.task] = rec
+                bar.advance(rec.info.num_samples)
+            remove_temps(root)  # what a worker killed mid-shard left (Ray ran its task again)
+        elif workers == 1:
             for t in todo:
                 rec = run_shard(cfg, t, root, lambda: bar.advance(1))
                 done[t.name] = rec

@@ -13,6 +13,8 @@ Layout of ``OUT/<suite>/``::
 An interrupted evaluation resumes: finished jobs are kept, the rest run. The suite directory is
 locked (:mod:`madp.io.lock`) while a run writes it, its worker processes die with it, and
 ``--overwrite`` removes only the files listed above (:func:`owned_files`), refusing any other.
+With ``ray`` set (``--ray``) the same tasks (:func:`plan_jobs`, the pool's :func:`_worker`) run as
+Ray tasks (:mod:`madp.io.ray_backend`) writing into ``OUT/<suite>/``, a path every node must see.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from madp.data_schema.manifest import sha256_file
 from madp.io.atomic import atomic_path, remove_temps, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
+from madp.io.ray_backend import ray_imap_unordered
 from madp.io.workers import die_with_parent
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
 from madp.controllers import CLASSICAL, LEARNED
@@ -57,6 +60,7 @@ class EvalConfig:
     eta: float = 0.0
     fixed_noise: bool = False
     workers: int = 0
+    ray: str | None = None  # run the jobs on Ray ("local", "auto" or an address: madp.io.ray_backend)
     record: int = 0
     video: int = 0
     cities: str | None = None
@@ -351,7 +355,11 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     with Progress(TextColumn(f"eval {suite}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   TextColumn("ETA"), TimeRemainingColumn(), disable=not progress) as bar:
         task = bar.add_task(suite, total=total, completed=total - pending)
-        if workers == 1:
+        if cfg.ray is not None and tasks:
+            for n in ray_imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec, filmed) for c, es, rec in tasks], cfg.ray):
+                bar.advance(task, n)
+            remove_temps(suite_dir)  # what a worker killed mid-job left (Ray ran its task again)
+        elif workers == 1:
             for c, es, rec in tasks:
                 bar.advance(task, run_task(cfg, c, es, suite_dir, rec, filmed))
         else:
