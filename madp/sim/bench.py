@@ -14,7 +14,6 @@ loads); uncapped, its DecentralizedCVT starts one thread per robot. Without the 
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
 from typing import Callable
@@ -86,9 +85,8 @@ def bench_sim(scenarios: int = 3, steps: int = 20, seed: int = 12345, library: b
 
     version, note = None, ""
     if library is not False:
-        os.environ.setdefault(reference.THREAD_LIMIT_ENV, "1")  # read when the library's OpenMP loads
         try:
-            version = reference.import_library().__version__
+            version = reference.import_library(thread_limit="1").__version__
         except ImportError as e:
             if library:
                 raise

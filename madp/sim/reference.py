@@ -54,14 +54,21 @@ def _import_torchvision():
         raise
 
 
-def import_library():
-    """The ``coverage_control`` module, or ImportError with the reason (not installed, or its imports fail)."""
+def import_library(thread_limit: str | None = None):
+    """The ``coverage_control`` module, or ImportError with the reason (not installed, or its imports fail).
+
+    ``thread_limit``: ``OMP_THREAD_LIMIT`` for the OpenMP runtimes this import loads (the library's, and
+    torch's if torch is not loaded yet), unless the environment sets one; the environment is restored
+    afterwards, so processes started later do not inherit it. No effect once the library is imported."""
     if "coverage_control" in sys.modules:
         return sys.modules["coverage_control"]
     if importlib.util.find_spec("coverage_control") is None:
         raise ImportError("coverage_control is not installed (pip install 'madp[reference]', see the README)")
     global thread_limit_at_import
+    before = os.environ.get(THREAD_LIMIT_ENV)
     try:
+        if thread_limit is not None and before is None:
+            os.environ[THREAD_LIMIT_ENV] = thread_limit
         thread_limit_at_import = os.environ.get(THREAD_LIMIT_ENV)
         _import_torchvision()
         import coverage_control
@@ -69,6 +76,9 @@ def import_library():
     except (ImportError, RuntimeError, OSError) as e:
         raise ImportError(f"coverage_control does not import ({type(e).__name__}: {e}); install madp[reference] "
                           "as the README's Benchmarks section says") from e
+    finally:
+        if before is None:
+            os.environ.pop(THREAD_LIMIT_ENV, None)
     return coverage_control
 
 

@@ -19,13 +19,13 @@ from madp.sim.reference import library_available
 
 from tests.conftest import in_ci
 
-LIBRARY, WHY_NOT = library_available()
-
 
 @pytest.fixture
 def library():
-    if not LIBRARY:
-        msg = f"coverage_control not importable: {WHY_NOT}"
+    # Imported here, not at collection: every xdist worker collects this file.
+    ok, why_not = library_available()
+    if not ok:
+        msg = f"coverage_control not importable: {why_not}"
         if in_ci():
             pytest.fail(f"{msg}; .ci/run installs madp[reference]", pytrace=False)
         pytest.skip(msg)
@@ -95,7 +95,7 @@ def test_library_adapter_reproduces_the_reference_vectors(vectors_dir, library):
 def test_library_flag_without_the_library_is_one_line(monkeypatch, capsys):
     import madp.sim.reference as ref
 
-    def missing():
+    def missing(thread_limit=None):
         raise ImportError("coverage_control is not installed")
 
     monkeypatch.setattr(ref, "import_library", missing)
