@@ -130,3 +130,13 @@ def test_ray_not_installed_is_one_line(monkeypatch, tmp_path, command, address):
     code, err = cli(*command, "--out", tmp_path / "out", "--ray", *address)
     assert_one_line(code, err, 'pip install "madp[ray]"')
     assert not (tmp_path / "out").exists()
+
+
+def test_bench_measures_the_ray_overhead_per_task(cluster):
+    from madp.datagen.bench import bench_ray_overhead
+
+    r = bench_ray_overhead(shard_samples=8, repeats=1, trivial=2)
+    assert r["cpus"] == 2 and r["repeats"] == 1 and r["shard_samples"] == 8
+    assert 0 < r["trivial_task_ms"] < 5000 and 0 < r["shard_local_s"] and 0 < r["shard_ray_s"]
+    assert r["shard_ratio"] == pytest.approx(r["shard_ray_s"] / r["shard_local_s"])
+    assert 0 <= r["shard_dispatch_ms"] < 1e3 * r["shard_ray_s"]

@@ -80,14 +80,23 @@ def _noop(item):
     return item
 
 
-def bench_ray_overhead(address: str | None = None, shard_samples: int = 128, repeats: int = 3, trivial: int = 20,
+def _timed_worker(args) -> tuple[dict, float]:
+    """The datagen worker function, and the seconds it took where it ran."""
+    from .runner import _worker
+
+    t = time.perf_counter()
+    return _worker(args), time.perf_counter() - t
+
+
+def bench_ray_overhead(address: str | None = None, shard_samples: int = 128, repeats: int = 5, trivial: int = 20,
                        fmt: str = "mcap", seed: int = 0) -> dict:
     """Per-task overhead of the Ray backend (:mod:`madp.io.ray_backend`), measured in this run.
 
     * the round trip of a trivial task through the backend (submit, wait, get), median of ``trivial``;
     * one shard task of ``shard_samples`` samples (the datagen worker function, the same shard each
       time) run in this process and as a Ray task, alternately, ``repeats`` times each: the medians,
-      their difference (the overhead per shard task) and their ratio.
+      their difference (the overhead per shard task) and their ratio, and the median dispatch cost
+      (a Ray task's round trip less the time the function took inside the worker).
 
     Workers are warmed up first (one tiny shard task each), so imports are not counted; the time to
     start or join Ray is reported on its own (a fixed cost per run)."""
@@ -102,7 +111,7 @@ def bench_ray_overhead(address: str | None = None, shard_samples: int = 128, rep
         cpus = int(ray.cluster_resources().get("CPU", 0))
         cfg = DatagenConfig(shard_samples, seed=seed, format=fmt, samples_per_shard=shard_samples).to_dict()
         tiny = (DatagenConfig(8, seed=seed, format=fmt).to_dict(), ShardTask("train", 0, 8), str(Path(d) / "warm"))
-        list(ray_imap_unordered(_worker, [tiny] * max(cpus, 1), address))
+        list(ray_imap_unordered(_timed_worker, [tiny] * max(cpus, 1), address))
         _worker(tiny)
         list(ray_imap_unordered(_noop, [0], address))
         trips = []
@@ -111,18 +120,20 @@ def bench_ray_overhead(address: str | None = None, shard_samples: int = 128, rep
             list(ray_imap_unordered(_noop, [i], address))
             trips.append(time.perf_counter() - t)
         task = ShardTask("train", 0, shard_samples)
-        local, remote = [], []
+        local, remote, dispatch = [], [], []
         for _ in range(repeats):
             t = time.perf_counter()
             a = _worker((cfg, task, str(Path(d) / "local")))
             local.append(time.perf_counter() - t)
             t = time.perf_counter()
-            (b,) = ray_imap_unordered(_worker, [(cfg, task, str(Path(d) / "ray"))], address)
+            ((b, inside),) = ray_imap_unordered(_timed_worker, [(cfg, task, str(Path(d) / "ray"))], address)
             remote.append(time.perf_counter() - t)
+            dispatch.append(remote[-1] - inside)
             if a != b:  # a bug, not a measurement
                 raise RuntimeError("a shard task made other bytes on Ray than in this process")
     local_s, ray_s = float(np.median(local)), float(np.median(remote))
     return {"address": address or "local", "cpus": cpus, "start_s": start_s,
             "trivial_task_ms": float(np.median(trips) * 1e3), "trivial_tasks": trivial,
             "shard_samples": shard_samples, "repeats": repeats, "shard_local_s": local_s, "shard_ray_s": ray_s,
-            "shard_overhead_s": ray_s - local_s, "shard_ratio": ray_s / local_s}
+            "shard_overhead_s": ray_s - local_s, "shard_ratio": ray_s / local_s,
+            "shard_dispatch_ms": float(np.median(dispatch) * 1e3)}

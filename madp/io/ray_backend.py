@@ -58,7 +58,9 @@ def ray_session(address: Optional[str] = None) -> Iterator[Any]:
         yield ray
         return
     if address in (None, "", RAY_LOCAL):
-        ray.init(include_dashboard=False, logging_level=logging.WARNING)
+        # Ray nices its workers (15) by default; tasks here run at this process's priority, as the
+        # local worker processes do (on a busy machine a niced task loses its core to other work)
+        ray.init(include_dashboard=False, logging_level=logging.WARNING, _system_config={"worker_niceness": 0})
     else:
         ray.init(address=address, logging_level=logging.WARNING)
     try:
