@@ -94,7 +94,7 @@ class RobotMaps:
             c = cells[robots]
             cols = np.clip(c[:, 0:1] - self.sensor_half + np.arange(2 * self.sensor_half), 0, w - 1)  # [R, 64]
             first = np.clip(c[:, 1] - self.sensor_half, 0, w - 1) // BLOCK
-            nblk = 2 * self.sensor_half // BLOCK + 1
+            nblk = min(2 * self.sensor_half // BLOCK + 1, nb)  # a sensor square may span the whole world
             first = np.minimum(first, nb - nblk)  # keep the 5 consecutive blocks inside the map
             blocks = first[:, None] + np.arange(nblk)  # [R, 5]
             line = robots[:, None] * w + cols  # [R, 64]
