@@ -80,3 +80,15 @@ def test_sigma_below_float32_range_gives_no_warning():
         warnings.simplefilter("error")
         m = importance_map(np.array([[5.5, 5.5, 1e-50, 1.0]]), 16)
     assert not m.any()
+
+
+def test_truncation_test_is_evaluated_in_float32():
+    """_20 / _22 (cell centres in float64: the truncation test then rounds differently). Here the
+    centre of cell 3 is 2σ away up to float32 rounding: (3.5 - μx)/σ is 2.00000012 exactly but 2 in
+    float32, so the cell is inside (the reference library's float32 rule). The values are float32
+    numbers, found by stepping σ and μx through floats."""
+    mx, sigma = 1.4957088232040405, 1.002145528793335
+    assert np.float32(mx) == mx and np.float32(sigma) == sigma
+    m = importance_map(np.array([[mx, 3.5, sigma, 1e-12]]), 16)
+    assert m[3, 3] == pytest.approx(cell_value(mx, 3.5, sigma, 1e-12, 3, 3), rel=1e-9, abs=0)
+    assert m[3, 4] == 0
