@@ -20,6 +20,7 @@ sha256, counts), a run that would do no step is refused, and the run directory i
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -36,6 +37,7 @@ from madp.data_schema.dataset import check_shards, open_dataset
 from madp.data_schema.manifest import sha256_file
 from madp.io.atomic import named, write_text_atomic
 from madp.io.lock import locked_dir
+from madp.io.workers import die_with_parent
 from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
 
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
@@ -364,7 +366,8 @@ class Trainer:
                 raise RuntimeError("checkpoint position is not at a worker round and optimizer step boundary")
             self.train_data.set_position(StreamPosition(self.epoch, done_per_worker * cfg.batch_size))
             loader = DataLoader(self.train_data, batch_size=cfg.batch_size, num_workers=cfg.num_workers,
-                                pin_memory=self.device.type == "cuda", persistent_workers=False)
+                                pin_memory=self.device.type == "cuda", persistent_workers=False,
+                                worker_init_fn=functools.partial(_loader_worker_init, os.getpid()))
             bar = _bar(self.progress, batches, self.batches_done, f"epoch {self.epoch + 1}/{cfg.epochs}")
             t_last, seen, loss_sum = time.perf_counter(), 0, 0.0
             for batch in loader:
@@ -435,6 +438,12 @@ class Trainer:
         if self.world > 1:
             self._check_sync()
         return {"stopped": stop_reason, "step": self.step, "epoch": self.epoch, "best_val_loss": self.best_val}
+
+
+def _loader_worker_init(parent_pid: int, worker_id: int) -> None:
+    """DataLoader workers end with the training process at once (the kernel's parent-death signal),
+    not only at torch's 5 s watchdog check, which a busy worker reaches late."""
+    die_with_parent(parent_pid)
 
 
 class _bar:
