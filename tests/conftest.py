@@ -50,3 +50,15 @@ def vectors_dir() -> Path:
 @pytest.fixture(scope="session")
 def cities_dir() -> Path:
     return require_shared(CITIES, "city files")
+
+
+def tiny_dataset(tmp_path_factory, name: str, workers: int = 1) -> Path:
+    """The small dataset the training, kill and error tests share: 160 samples of 4 robots and 4
+    features on a 256 m world, seed 1, shards of 16 (the bytes do not depend on ``workers``)."""
+    from madp.datagen import DatagenConfig, run_datagen
+    from madp.sim import SimParams
+
+    root = tmp_path_factory.mktemp(name)
+    cfg = DatagenConfig(160, seed=1, samples_per_shard=16, params=SimParams(world_size=256, num_robots=4, num_features=4))
+    run_datagen(cfg, root, workers=workers, progress=False)
+    return root

@@ -21,9 +21,8 @@ import pytest
 import torch
 
 from madp.cli import main
-from madp.datagen import DatagenConfig, run_datagen
-from madp.sim import SimParams
 from madp.training import resolve, train
+from tests.conftest import tiny_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED_LPAC = REPO / "madp" / "checkpoints" / "lpac-cpu.safetensors"
@@ -67,10 +66,7 @@ def assert_one_line(code: int, err: str, *needles: str) -> str:
 # --- train --resume with a damaged or foreign checkpoint -------------------------------------------
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    root = tmp_path_factory.mktemp("data")
-    cfg = DatagenConfig(160, seed=1, samples_per_shard=16, params=SimParams(world_size=256, num_robots=4, num_features=4))
-    run_datagen(cfg, root, workers=1, progress=False)
-    return root
+    return tiny_dataset(tmp_path_factory, "data")
 
 
 TRAIN = ["--epochs", "1", "--batch-size", "8", "--workers", "0", "--val-samples", "8"]

@@ -29,6 +29,7 @@ from madp.eval.runner import EvalConfig, run_suite
 from madp.io.lock import LOCK_FILENAME, pid_running
 from madp.sim import SimParams
 from madp.training import load_policy, resolve, train
+from tests.conftest import tiny_dataset
 
 SEED = int(os.environ.get("MADP_FAULT_SEED", "15"))
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds worker processes through /proc")
@@ -156,10 +157,7 @@ TRAIN_ARGS = ["--epochs", "2", "--batch-size", "8", "--workers", "1", "--val-sam
 
 @pytest.fixture(scope="module")
 def train_data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("train-data")
-    cfg = DatagenConfig(160, seed=1, samples_per_shard=16, params=SimParams(world_size=256, num_robots=4, num_features=4))
-    run_datagen(cfg, root, workers=1, progress=False)
-    return root
+    return tiny_dataset(tmp_path_factory, "train-data")
 
 
 @pytest.fixture(scope="module")

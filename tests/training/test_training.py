@@ -17,14 +17,12 @@ from madp.datagen import DatagenConfig, run_datagen
 from madp.sim import SimParams
 from madp.training import ShardStream, StreamPosition, load_policy, resolve, train
 from madp.training.config import learning_rate
+from tests.conftest import tiny_dataset
 
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    root = tmp_path_factory.mktemp("data")
-    cfg = DatagenConfig(160, seed=1, samples_per_shard=16, params=SimParams(world_size=256, num_robots=4, num_features=4))
-    run_datagen(cfg, root, workers=2, progress=False)
-    return root
+    return tiny_dataset(tmp_path_factory, "data", workers=2)
 
 
 def ids(stream):
