@@ -4,8 +4,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 -m venv .venv
-.venv/bin/pip install -q torch==2.13.0
-.venv/bin/pip install -q -e .
+.venv/bin/pip install -q torch==2.13.0 uv==0.13.8   # pip: the CPU torch on this disk; uv: the rest, in seconds
+.venv/bin/uv pip install --python .venv/bin/python -q -e . torch==2.13.0
 rm -rf runs/quickstart-madp runs/quickstart-lpac
 .venv/bin/madp datagen --n 2000 --out data/quickstart --overwrite
 .venv/bin/madp train --model madp --data data/quickstart --out runs/quickstart-madp --epochs 1 --max-steps-per-epoch 30

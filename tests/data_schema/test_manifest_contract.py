@@ -307,3 +307,33 @@ def test_verify_shards_messages(tmp_path):
     m.verify_shards(tmp_path, check_sha256=False)
     shard.write_bytes(body)
     m.verify_shards(tmp_path)
+
+
+# ---------------------------------------------------------------- canonical JSON, from_dict round trip
+
+
+def test_dumps_canonical_text_is_pinned(tmp_path):
+    """Guards the manifest's exact bytes (its sha256 is recorded in checkpoints' provenance): sorted
+    keys, 2-space indent, numpy arrays and scalars as plain JSON, paths as strings, NaN refused
+    (mutants: ``indent=3``/``None``/dropped, ``sort_keys=False``/``None``/dropped, ``allow_nan=None``,
+    ``_jsonable(None)`` for arrays, ``os.fspath(None)``)."""
+    from pathlib import Path
+
+    from madp.data_schema.manifest import dumps_canonical
+
+    text = dumps_canonical({"b": np.array([1, 2], dtype=np.int64), "a": {"d": np.float32(0.5), "c": Path("x/y")}})
+    assert text == '{\n  "a": {\n    "c": "x/y",\n    "d": 0.5\n  },\n  "b": [\n    1,\n    2\n  ]\n}\n'
+    with pytest.raises(ValueError):
+        dumps_canonical({"x": float("nan")})
+
+
+def test_from_dict_keeps_what_the_file_says():
+    """Guards ``Manifest.from_dict``: one robot is a valid dataset (mutant ``num_robots <= 1``), a
+    manifest whose action statistics are still ``null`` loads (mutant ``(stats_d is None) and
+    False``), and the writer's ``code_version`` is the file's, not this install's (mutant dropping
+    ``code_version=``); the dict round-trips exactly."""
+    d = _manifest_dict()
+    d.update(num_robots=1, action_stats=None, code_version="0.0.1-writer")
+    m = Manifest.from_dict(copy.deepcopy(d))
+    assert m.num_robots == 1 and m.action_stats is None and m.code_version == "0.0.1-writer"
+    assert m.to_dict() == d

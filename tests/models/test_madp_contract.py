@@ -265,3 +265,21 @@ if __name__ == "__main__":
     GOLDEN.parent.mkdir(exist_ok=True)
     save_file(_golden_outputs(), str(GOLDEN))
     print(f"wrote {GOLDEN}")
+
+
+def test_forward_is_loss_with_every_argument(gen):
+    """Guards ``MADP.forward`` (what DDP calls): it passes ``k`` and ``noise`` through to ``loss``
+    (mutants dropping either: a dropped ``k`` shifts ``noise`` into its place, a dropped ``noise``
+    draws fresh noise)."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config()).eval()
+    obs = random_obs(2, 4, generator=gen)
+    pos = grid_positions(8, 0, 300, gen).view(2, 4, 2)
+    act = torch.randn(2, 4, 2, generator=gen)
+    k = torch.tensor([3, 17])
+    noise = torch.randn(2, 4, 2, generator=gen)
+    with torch.no_grad():
+        want = model.loss(obs, pos, act, None, None, k, noise)
+        got = model(obs, pos, act, None, torch.Generator().manual_seed(9), k, noise)
+        assert torch.equal(got, want)
+        assert not torch.equal(model(obs, pos, act, None, None, k, -noise), want)

@@ -106,3 +106,15 @@ def test_mass_overflow_boundary(sigma, peak, overflows):
             "w: field 'features[0]': sigma and peak are too large (the feature's mass 2πσ²·peak overflows)"
     else:
         assert _features(f, "w")[0].tolist() == [100.0, 120.0, sigma, peak]
+
+
+def test_with_params_changes_only_the_named_parameters():
+    """Guards ``Scenario.with_params``: a copy whose params differ only where asked, with the same
+    features and robots, the original untouched (mutants: ``replace(None, …)``, ``params=None``,
+    ``replace(**changes)``, changes dropped)."""
+    s = Scenario.from_dict(doc())
+    t = s.with_params(comm_radius_m=100.0)
+    assert t.params.comm_radius_m == 100.0 and s.params.comm_radius_m != 100.0
+    assert t.params.world_size == s.params.world_size == W
+    np.testing.assert_array_equal(t.features, s.features)
+    np.testing.assert_array_equal(t.robots_m, s.robots_m)
