@@ -13,7 +13,7 @@ from typing import Protocol
 import numpy as np
 
 from .env import CoverageEnv
-from .voronoi import MASS_EPS, Cells, reduce_cells, world_cells
+from .voronoi import MASS_EPS, cell_sums, world_sums
 
 GOAL_EPS_M = 1e-10
 
@@ -47,10 +47,7 @@ class ClairvoyantCVT:
 
     def goals(self, env: CoverageEnv) -> np.ndarray:
         """Φ-weighted centroids of the robots' Voronoi cells on the world map [N, 2]."""
-        cells = world_cells(env.positions_m, env.params.world_size)
-        robot, column = cells.column_pairs()
-        lo, hi = cells.row_intervals(robot, column)
-        sums = reduce_cells(cells, robot, column, env.prefix.interval_sums(column, lo, hi, 2), False)
+        sums = world_sums(env.prefix, env.positions_m, with_cost=False)
         self.masses = sums.mass
         return sums.centroid_m
 
@@ -76,13 +73,10 @@ class DecentralizedCVT:
         n, s, w = len(x), p.local_map_size, p.world_size
         base = env.cells() - s // 2  # [N, 2] global cell of local cell (0, 0)
         boxes = np.concatenate([np.maximum(base, 0), np.minimum(base + s, w)], axis=1).astype(np.float64)
-        cells = Cells(x, np.broadcast_to(x[None], (n, n, 2)), env.neighbours(), boxes)
-        robot, column = cells.column_pairs()
-        lo, hi = cells.row_intervals(robot, column)
-        s0, s1 = env.maps.row_sums(robot, column, lo, hi)
-        sums = reduce_cells(cells, robot, column, np.stack([s0, s1]), False)
-        self.masses = sums.mass
-        return sums.centroid_m
+        others = np.broadcast_to(np.arange(n), (n, n))  # every robot competes where it is a neighbour
+        mass, centroid, _ = cell_sums(x, x, others, env.neighbours(), boxes, block_sums=env.maps.block_sums())
+        self.masses = mass
+        return centroid
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         self.goals_m = self.goals(env)

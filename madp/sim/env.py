@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .idf import importance_map
-from .observations import observation_tensor
+from .observations import stack_observations
 from .params import SimParams
 from .robot_maps import RobotMaps, robot_cells
 from .scenario import Scenario, ScenarioError
@@ -118,8 +118,9 @@ class CoverageEnv:
     def observations(self) -> np.ndarray:
         """O [N, 4, 32, 32] float32, channels (local map, comm x, comm y, boundary)."""
         p = self.params
-        return observation_tensor(self.local_maps(), self.cells(), self.positions_m, p.world_size,
-                                  p.comm_radius_m, p.obs_size)
+        cells = self.cells()
+        return stack_observations(self.maps.resized_local_maps(cells, p.obs_size), cells, self.positions_m,
+                                  p.world_size, p.comm_radius_m, p.local_map_size)
 
     def cost(self) -> float:
         """Coverage cost J of the current positions on the world map."""

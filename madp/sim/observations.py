@@ -4,7 +4,9 @@ Channel order is the Coverage Control Library's (``local_map, comm_x, comm_y, ob
 order of the reference vectors; ``CHANNELS`` names it. Local and boundary maps are 256 × 256 crops
 resized to 32 × 32 by antialiased bilinear interpolation. That resize is linear and separable: one
 fixed [32, 256] matrix R gives R · M · Rᵀ, equal to torch's ``F.interpolate(mode='bilinear',
-antialias=True)`` (tested), without importing torch here.
+antialias=True)`` (tested), without importing torch here. R is banded (16 taps a row), so the
+compiled kernel applies it as a band, along x then y, reading each robot's window straight from
+its padded map (:meth:`RobotMaps.resized_local_maps`).
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+
+from . import kernels
 
 CHANNELS = ("local_map", "comm_x", "comm_y", "obstacle_map")
 
@@ -33,13 +37,39 @@ def resize_matrix(in_size: int = 256, out_size: int = 32) -> np.ndarray:
     return weights.astype(np.float32)
 
 
+@lru_cache(maxsize=8)
+def resize_band(in_size: int = 256, out_size: int = 32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`resize_matrix` as a band: (first [out] int64, taps [out] int64, weights [out, T] float32),
+    row i's non-zero weights ``weights[i, :taps[i]]`` starting at column ``first[i]``."""
+    r = resize_matrix(in_size, out_size)
+    nz = r != 0
+    first = nz.argmax(1)
+    taps = in_size - nz[:, ::-1].argmax(1) - first
+    weights = np.zeros((out_size, int(taps.max())), np.float32)
+    for i in range(out_size):
+        weights[i, : taps[i]] = r[i, first[i] : first[i] + taps[i]]
+    return first.astype(np.int64), taps.astype(np.int64), weights
+
+
+def resize_windows(maps: np.ndarray, starts: np.ndarray, size: int, out_size: int, box: np.ndarray | None = None) -> np.ndarray:
+    """Resize the windows maps[k, x0 : x0 + size, y0 : y0 + size], (x0, y0) = starts[k], of float32
+    maps [K, H, W] to [K, out, out] (:func:`madp.sim.kernels.resize_windows`). ``box`` [K, 4]
+    (x0, x1, y0, y1 in the maps' coordinates) bounds where map k may be non-zero."""
+    first, taps, weights = resize_band(size, out_size)
+    if box is None:
+        box = np.broadcast_to(np.array([0, maps.shape[1], 0, maps.shape[2]]), (len(maps), 4))
+    out = np.empty((len(maps), out_size, out_size), np.float32)
+    kernels.resize_windows(maps, np.ascontiguousarray(starts, dtype=np.int64), size, first, taps, weights,
+                           np.ascontiguousarray(box, dtype=np.int64), out)
+    return out
+
+
 def resize_maps(maps: np.ndarray, out_size: int = 32) -> np.ndarray:
     """Antialiased bilinear resize of [..., S, S] maps to [..., out, out] (float32)."""
-    r = resize_matrix(maps.shape[-1], out_size)
     lead, s = maps.shape[:-2], maps.shape[-1]
-    # One large GEMM over every row of every map (y direction), then the small x-direction products.
-    half = (maps.astype(np.float32, copy=False).reshape(-1, s) @ r.T).reshape(-1, s, out_size)
-    return (r @ half).reshape(*lead, out_size, out_size)
+    flat = np.ascontiguousarray(maps, dtype=np.float32).reshape(-1, s, s)
+    out = resize_windows(flat, np.zeros((len(flat), 2), np.int64), s, out_size)
+    return out.reshape(*lead, out_size, out_size)
 
 
 def boundary_maps(cells_xy: np.ndarray, world_size: int, local_size: int = 256, out_size: int = 32) -> np.ndarray:
@@ -95,9 +125,16 @@ def observation_tensor(
     out_size: int = 32,
 ) -> np.ndarray:
     """Stack O [N, 4, out, out] float32 from raw local maps [N, S, S] and the robots' state."""
-    n = len(positions_m)
+    return stack_observations(resize_maps(local_maps, out_size), cells_xy, positions_m, world_size, comm_radius_m,
+                              local_maps.shape[-1])
+
+
+def stack_observations(resized_local: np.ndarray, cells_xy: np.ndarray, positions_m: np.ndarray, world_size: int,
+                       comm_radius_m: float, local_size: int = 256) -> np.ndarray:
+    """O [N, 4, out, out] float32 from the already resized local maps [N, out, out] and the robots' state."""
+    n, out_size = len(positions_m), resized_local.shape[-1]
     obs = np.empty((n, 4, out_size, out_size), dtype=np.float32)
-    obs[:, 0] = resize_maps(local_maps, out_size)
+    obs[:, 0] = resized_local
     obs[:, 1:3] = neighbour_maps(positions_m, comm_radius_m, out_size)
-    obs[:, 3] = boundary_maps(cells_xy, world_size, local_maps.shape[-1], out_size)
+    obs[:, 3] = boundary_maps(cells_xy, world_size, local_size, out_size)
     return obs

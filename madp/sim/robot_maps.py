@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-BLOCK = 16  # rows per block of the block prefix sums
-_OFFSETS = np.arange(BLOCK, dtype=np.float32) + np.float32(0.5)  # a row's centre within its block
+from . import kernels
+from .kernels import BLOCK  # rows per block of the block prefix sums
 
 
 def robot_cells(positions_m: np.ndarray) -> np.ndarray:
@@ -42,6 +42,10 @@ class RobotMaps:
         self._tot: np.ndarray | None = None  # [N, W, W/16, 2] float64 block totals
         self._stale: list[np.ndarray] = []  # sensed cells [N, 2] since the block sums were updated
         self._last_cells: np.ndarray | None = None
+        # Bounding box of what each robot has sensed, in padded coordinates: (x0, y0) [N, 2] and
+        # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by sense() alone).
+        self.seen_lo = np.full((num_robots, 2), self.maps_padded.shape[1], dtype=np.int64)
+        self.seen_hi = np.zeros((num_robots, 2), dtype=np.int64)
 
     def sense(self, cells_xy: np.ndarray) -> None:
         """Copy the world's cells c-s/2 .. c+s/2-1 (per axis) into each robot's map."""
@@ -56,93 +60,37 @@ class RobotMaps:
         for n in np.flatnonzero(moved):  # one slice per robot that reached a new cell
             (x0, y0), (x1, y1) = lo[n], hi[n]
             self.maps_padded[n, x0:x1, y0:y1] = self.world_padded[x0:x1, y0:y1]
+        np.minimum(self.seen_lo, lo, out=self.seen_lo)
+        np.maximum(self.seen_hi, hi, out=self.seen_hi)
         if self._cum is not None and moved.any():
             self._stale.append(np.where(moved[:, None], cells_xy, -(1 << 40)))
 
     # --- prefix sums along y, in blocks of 16 rows -------------------------------------------------
-    def _running_sums(self, robots: np.ndarray, cols: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-        """Within-block running sums of (map, map·(t + 0.5)), t the row's offset in its block, for
-        the consecutive blocks first[R] .. first + B - 1 of columns [R, C]: [R, C, B, 16, 2] float32;
-        entry t sums rows 0..t of its block."""
-        wp = self.maps_padded.shape[1]
-        nrows = blocks.shape[1] * BLOCK
-        start = (robots[:, None] * wp + cols + self.pad) * wp + self.pad + blocks[:, :1] * BLOCK  # [R, C]
-        vals = np.take(self.maps_padded.reshape(-1), start[:, :, None] + np.arange(nrows))
-        vals = vals.reshape(*cols.shape, blocks.shape[1], BLOCK)
-        out = np.empty(vals.shape + (2,), np.float32)
-        np.cumsum(vals, axis=-1, out=out[..., 0])
-        np.cumsum(vals * _OFFSETS, axis=-1, out=out[..., 1])
-        return out
-
-    def _refresh(self) -> tuple[np.ndarray, np.ndarray]:
-        n, w = len(self.maps_padded), self.world_size
-        nb = w // BLOCK
+    def block_sums(self) -> tuple[np.ndarray, np.ndarray]:
+        """(cum [N, W, W/16 + 1, 2] float64, within [N, W, W/16, 16, 2] float32), up to date: built
+        whole the first time, then recomputed under the sensor squares of the robots that moved
+        (:func:`madp.sim.kernels.refresh_blocks`, bit-identical to a fresh build)."""
         if self._cum is None:
+            n, w = len(self.maps_padded), self.world_size
+            nb = w // BLOCK
             self._within = np.empty((n, w, nb, BLOCK, 2), np.float32)
             self._tot = np.empty((n, w, nb, 2))
-            all_cols = np.arange(w)
-            for r in range(n):  # once per episode
-                self._within[r] = self._within_of(r, all_cols)
-                self._tot[r] = self._block_totals(self._within[r], 0)
             self._cum = np.zeros((n, w, nb + 1, 2))
-            np.cumsum(self._tot, axis=2, out=self._cum[:, :, 1:])
+            kernels.refresh_all(self.maps_padded, self.pad, self._within, self._tot, self._cum)
             self._stale.clear()
-        within = self._within.reshape(-1, BLOCK, 2)
-        tot, cum = self._tot.reshape(-1, nb, 2), self._cum.reshape(-1, nb + 1, 2)
         for cells in self._stale:
-            robots = np.flatnonzero(cells[:, 0] > -(1 << 39))
-            c = cells[robots]
-            cols = np.clip(c[:, 0:1] - self.sensor_half + np.arange(2 * self.sensor_half), 0, w - 1)  # [R, 64]
-            first = np.clip(c[:, 1] - self.sensor_half, 0, w - 1) // BLOCK
-            nblk = min(2 * self.sensor_half // BLOCK + 1, nb)  # a sensor square may span the whole world
-            first = np.minimum(first, nb - nblk)  # keep the 5 consecutive blocks inside the map
-            blocks = first[:, None] + np.arange(nblk)  # [R, 5]
-            line = robots[:, None] * w + cols  # [R, 64]
-            rs = self._running_sums(robots, cols, blocks)
-            within[(line[:, :, None] * nb + blocks[:, None, :]).reshape(-1)] = rs.reshape(-1, BLOCK, 2)
-            tot_lines = tot[line.reshape(-1)]  # [R·64, nb, 2]
-            tl = tot_lines.reshape(*line.shape, nb, 2)
-            np.put_along_axis(tl, blocks[:, None, :, None], self._block_totals(rs, blocks[:, None, :]), axis=2)
-            tot[line.reshape(-1)] = tot_lines
-            cum[line.reshape(-1), 1:] = np.cumsum(tot_lines, axis=1)
+            kernels.refresh_blocks(self.maps_padded, self.pad, self._within, self._tot, self._cum, cells,
+                                   self.sensor_half)
         self._stale.clear()
         return self._cum, self._within
-
-    def _within_of(self, r: int, cols: np.ndarray) -> np.ndarray:
-        nb = self.world_size // BLOCK
-        m = self.robot_map(r)[cols].reshape(len(cols), nb, BLOCK)
-        out = np.empty((len(cols), nb, BLOCK, 2), np.float32)
-        np.cumsum(m, axis=-1, out=out[..., 0])
-        np.cumsum(m * _OFFSETS, axis=-1, out=out[..., 1])
-        return out
-
-    @staticmethod
-    def _block_totals(running: np.ndarray, blocks) -> np.ndarray:
-        """Per-block totals [..., B, 2] float64 of (map, map·(y + 0.5)) from running sums
-        [..., B, 16, 2]; ``blocks`` (broadcastable to [..., B]) are the blocks' indices (0: all from 0)."""
-        tot = running[..., BLOCK - 1, :].astype(np.float64)
-        if np.isscalar(blocks):
-            blocks = np.arange(tot.shape[-2])
-        tot[..., 1] += np.asarray(blocks) * BLOCK * tot[..., 0]
-        return tot
 
     def row_sums(self, robot: np.ndarray, column: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Σ robot's map over world rows [lo, hi) of world column, and Σ map·(y + 0.5): float64 [P] each.
 
         Prefix at row h = (whole blocks below h) + (running sum inside h's block up to row h - 1)."""
-        cum, within = self._refresh()
-        p = len(robot)
-        r, c, h = np.concatenate([robot, robot]), np.concatenate([column, column]), np.concatenate([hi, lo])
-        b, t = np.divmod(h, BLOCK)
-        nb = within.shape[2]
-        line = r * within.shape[1] + c
-        cell = (line * nb + np.minimum(b, nb - 1)) * BLOCK + np.maximum(t - 1, 0)
-        part = np.take(within.reshape(-1, 2), cell, axis=0).astype(np.float64)
-        part[:, 1] += b * BLOCK * part[:, 0]  # block-local offsets → world rows
-        part[t == 0] = 0.0
-        total = np.take(cum.reshape(-1, 2), line * (nb + 1) + b, axis=0) + part
-        d = total[:p] - total[p:]
-        return d[:, 0], d[:, 1]
+        cum, within = self.block_sums()
+        i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
+        return kernels.block_row_sums(within, cum, i64(robot), i64(column), i64(lo), i64(hi))
 
     def local_maps(self, cells_xy: np.ndarray) -> np.ndarray:
         """Raw local maps [N, S, S] float32: cells c-S/2 .. c+S/2-1 of each robot's map, zero outside."""
@@ -152,6 +100,16 @@ class RobotMaps:
         for n, (x0, y0) in enumerate(starts):  # one slice per robot
             out[n] = self.maps_padded[n, x0 : x0 + s, y0 : y0 + s]
         return out
+
+    def resized_local_maps(self, cells_xy: np.ndarray, out_size: int) -> np.ndarray:
+        """The local maps resized to [N, out, out] float32, read straight from the padded maps: bit for
+        bit ``resize_maps(self.local_maps(cells_xy), out_size)``, without the crops' copy, and
+        skipping what lies outside each robot's sensed box (zeros either way)."""
+        from .observations import resize_windows
+
+        starts = np.asarray(cells_xy, dtype=np.int64) - self.local_size // 2 + self.pad
+        box = np.concatenate([self.seen_lo[:, :1], self.seen_hi[:, :1], self.seen_lo[:, 1:], self.seen_hi[:, 1:]], 1)
+        return resize_windows(self.maps_padded, starts, self.local_size, out_size, box)
 
     def robot_map(self, n: int) -> np.ndarray:
         """Robot n's full map [W, W] (a view)."""
