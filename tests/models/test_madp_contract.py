@@ -26,6 +26,12 @@ from madp.models.madp import TimestepEmbedding, pack_rows
 sys.path.insert(0, str(Path(__file__).parent))
 from models_testutils import grid_positions, random_obs, tiny_madp_config  # noqa: E402
 
+
+def swarm(gen, b: int, n: int, hi: float, lo: float = 0.0):
+    """``obs [b, n, 4, 32, 32]`` then positions ``[b, n, 2]`` on a 1/64 m grid in [lo, hi]² m, drawn
+    from ``gen`` in that order (the golden outputs depend on it)."""
+    return random_obs(b, n, generator=gen), grid_positions(b * n, lo, hi, gen).view(b, n, 2)
+
 GOLDEN = Path(__file__).parent / "data" / "madp_golden.safetensors"
 
 
@@ -89,8 +95,7 @@ def test_loss_is_the_masked_mean_squared_noise_error(gen):
     torch.manual_seed(0)
     model = MADP(tiny_madp_config()).eval()
     b, n = 2, 5
-    obs = random_obs(b, n, generator=gen)
-    pos = grid_positions(b * n, 0, 300, gen).view(b, n, 2)
+    obs, pos = swarm(gen, b, n, 300)
     act = torch.randn(b, n, 2, generator=gen)
     valid = torch.tensor([[True] * 5, [True, True, True, False, False]])
     g = torch.Generator().manual_seed(5)
@@ -130,8 +135,7 @@ def test_a_float64_model_computes_in_float64(gen):
     torch.manual_seed(0)
     model = MADP(tiny_madp_config()).eval()
     b, n = 2, 5
-    obs = random_obs(b, n, generator=gen)
-    pos = grid_positions(b * n, 0, 400, gen).view(b, n, 2)
+    obs, pos = swarm(gen, b, n, 400)
     act = torch.randn(b, n, 2, generator=gen)
     valid = torch.ones(b, n, dtype=torch.bool)
     valid[1, 4] = False
@@ -162,8 +166,7 @@ def test_loss_draws_k_then_noise_in_the_models_dtype(gen):
     float64 model draws float64 noise: another stream of numbers than float32)."""
     torch.manual_seed(0)
     model = MADP(tiny_madp_config()).double().eval()
-    obs = random_obs(2, 4, generator=gen)
-    pos = grid_positions(8, 0, 300, gen).view(2, 4, 2)
+    obs, pos = swarm(gen, 2, 4, 300)
     act = torch.randn(2, 4, 2, generator=gen)
     g = torch.Generator().manual_seed(4)
     k = model.schedule.sample_timesteps(2, generator=g)
@@ -179,8 +182,7 @@ def test_a_float64_model_is_shift_invariant_to_float64_precision(gen):
     ``self.rope(pos_m, self.dtype)`` losing its dtype: float32 tables move the output by ~1e-7)."""
     torch.manual_seed(0)
     model = MADP(tiny_madp_config(rope_layers=2)).double().eval()
-    obs = random_obs(1, 8, generator=gen)
-    pos = grid_positions(8, 100, 500, gen).view(1, 8, 2)
+    obs, pos = swarm(gen, 1, 8, 500, lo=100)
     shift = torch.tensor([123.0, -77.0])
     act = torch.randn(1, 8, 2, generator=gen)
     u_k = torch.randn(1, 8, 2, generator=gen)
@@ -202,8 +204,7 @@ def test_training_and_sampling_paths_compute_the_same_eps(gen):
     that the other lacks (mask, padding, time embedding, memory K/V) shows."""
     torch.manual_seed(0)
     model = MADP(tiny_madp_config(rope_layers=2)).double().eval()
-    obs = random_obs(2, 6, generator=gen)
-    pos = grid_positions(12, 0, 500, gen).view(2, 6, 2)
+    obs, pos = swarm(gen, 2, 6, 500)
     valid = torch.ones(2, 6, dtype=torch.bool)
     valid[1, 5] = False
     u_k = torch.randn(2, 6, 2, generator=gen, dtype=torch.float64)
@@ -225,8 +226,7 @@ def _golden_outputs() -> dict[str, torch.Tensor]:
     out = {}
     gen = torch.Generator().manual_seed(2026)
     b, n = 2, 7
-    obs = random_obs(b, n, generator=gen)
-    pos = grid_positions(b * n, 0, 420, gen).view(b, n, 2)  # r_c = 256: neighbourhoods, not one clique
+    obs, pos = swarm(gen, b, n, 420)  # r_c = 256: neighbourhoods, not one clique
     valid = torch.ones(b, n, dtype=torch.bool)
     valid[1, 5:] = False
     act = torch.randn(b, n, 2, generator=gen)
@@ -273,8 +273,7 @@ def test_forward_is_loss_with_every_argument(gen):
     draws fresh noise)."""
     torch.manual_seed(0)
     model = MADP(tiny_madp_config()).eval()
-    obs = random_obs(2, 4, generator=gen)
-    pos = grid_positions(8, 0, 300, gen).view(2, 4, 2)
+    obs, pos = swarm(gen, 2, 4, 300)
     act = torch.randn(2, 4, 2, generator=gen)
     k = torch.tensor([3, 17])
     noise = torch.randn(2, 4, 2, generator=gen)
