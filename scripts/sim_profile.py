@@ -66,12 +66,13 @@ def main() -> None:
     t("lloyd_velocity (with the oscillation check)", lambda: lloyd_velocity(env, goals))
     u = expert(env)
     saved = (env.positions_m.copy(), env.offset_m.copy(), list(env.history), env.maps._last_cells.copy(), env.steps,
-             env.maps.seen_lo.copy(), env.maps.seen_hi.copy())
+             env.maps.seen_lo.copy(), env.maps.seen_hi.copy(), env.maps._last_lo, env.maps._last_hi)
 
     def step_only():
         env.positions_m, env.offset_m, env.history = saved[0].copy(), saved[1].copy(), list(saved[2])
         env.maps._last_cells, env.steps = saved[3].copy(), saved[4]
         env.maps.seen_lo[:], env.maps.seen_hi[:] = saved[5], saved[6]
+        env.maps._last_lo, env.maps._last_hi = saved[7], saved[8]
         env.step(u)
 
     t("env.step(u): move, clamp, sense, history", step_only)

@@ -33,6 +33,7 @@ import numpy as np
 BLOCK = 16  # rows per block of the robots' block prefix sums (robot_maps.BLOCK)
 
 _jit = numba.njit(cache=True, error_model="numpy", nogil=True)
+_inline = numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")  # small helpers: 20% faster walk
 
 
 # --- the Voronoi cell of one robot ----------------------------------------------------------------
@@ -87,7 +88,7 @@ def _cell_lines(r, sites, points, idx, valid, boxes, sl_up, ic_up, sl_lo, ic_lo,
     return nu + 1, nl + 1, max(xlo, x0), min(xhi, x1), nlive
 
 
-@_jit
+@_inline
 def _envelope(x, sl_up, ic_up, nu, sl_lo, ic_lo, nl):
     """(y_lower, y_upper) of the cell at column centre x: the highest lower bound, the lowest upper."""
     y_up = np.inf
@@ -103,14 +104,14 @@ def _envelope(x, sl_up, ic_up, nu, sl_lo, ic_lo, nl):
     return y_lo, y_up
 
 
-@_jit
+@_inline
 def _round_row(y, b0, b1):
     """floor(y + 0.5) clipped to the box's rows [b0, b1], as the library rounds a row bound."""
     v = np.floor(min(max(y, -1e9), 1e9) + 0.5)
     return int(min(max(v, b0), b1))
 
 
-@_jit
+@_inline
 def _column_rows(c, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows):
     """Whether the cell reaches column c (its continuous bounds there are not empty); if so its
     rounded rows [lo, hi) go to rows[c]."""
@@ -126,7 +127,7 @@ def _column_rows(c, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows):
     return True
 
 
-@_jit
+@_inline
 def _block_prefix(within, cum, r, c, h, nb):
     """Σ (map, map·(y + 0.5)) of robot r's map over rows [0, h) of column c: whole blocks from
     ``cum``, the rest from the running sums inside h's block (RobotMaps.row_sums' lookups)."""
@@ -305,7 +306,31 @@ def block_row_sums(within, cum, robot, column, lo, hi):
     return s0, s1
 
 
-# --- block prefix sums of the robots' own maps ----------------------------------------------------
+# --- sensing and the block prefix sums of the robots' own maps ----------------------------------------------------
+@_jit
+def sense_squares(maps_padded, world_padded, lo, hi, last_lo, last_hi):
+    """Copy the squares [x0, x1) × [y0, y1) of the world, (x0, y0) = lo[n], (x1, y1) = hi[n] (clipped
+    to the padded maps), into each robot n's map: only the cells outside its previous square
+    [last_lo[n], last_hi[n]), which the previous call already copied (the world does not change),
+    so a robot one cell on copies one new row and one new column of its square, not all of it."""
+    for n in range(lo.shape[0]):
+        x0, y0, x1, y1 = lo[n, 0], lo[n, 1], hi[n, 0], hi[n, 1]
+        px0, py0, px1, py1 = last_lo[n, 0], last_lo[n, 1], last_hi[n, 0], last_hi[n, 1]
+        if x0 == px0 and y0 == py0 and x1 == px1 and y1 == py1:
+            continue
+        for x in range(x0, x1):
+            dst = maps_padded[n, x]
+            src = world_padded[x]
+            if px0 <= x < px1 and py0 < py1:  # a row the previous square covered in [py0, py1)
+                for y in range(y0, min(y1, py0)):
+                    dst[y] = src[y]
+                for y in range(max(y0, py1), y1):
+                    dst[y] = src[y]
+            else:
+                for y in range(y0, y1):
+                    dst[y] = src[y]
+
+
 @_jit
 def refresh_blocks(maps_padded, pad, within, tot, cum, cells, sensor_half):
     """Recompute the block sums of every robot whose ``cells[r]`` is a cell (not < -2^39) under its

@@ -42,6 +42,7 @@ class RobotMaps:
         self._tot: np.ndarray | None = None  # [N, W, W/16, 2] float64 block totals
         self._stale: list[np.ndarray] = []  # sensed cells [N, 2] since the block sums were updated
         self._last_cells: np.ndarray | None = None
+        self._last_lo = self._last_hi = np.zeros((num_robots, 2), dtype=np.int64)  # last sensed squares (padded)
         # Bounding box of what each robot has sensed, in padded coordinates: (x0, y0) [N, 2] and
         # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by sense() alone).
         self.seen_lo = np.full((num_robots, 2), self.maps_padded.shape[1], dtype=np.int64)
@@ -49,6 +50,7 @@ class RobotMaps:
 
     def sense(self, cells_xy: np.ndarray) -> None:
         """Copy the world's cells c-s/2 .. c+s/2-1 (per axis) into each robot's map."""
+        cells_xy = np.asarray(cells_xy, dtype=np.int64)
         lo = cells_xy - self.sensor_half + self.pad
         hi = cells_xy + self.sensor_half + self.pad
         # Robots farther than half a sensor outside the world see nothing (library rule); positions
@@ -57,9 +59,8 @@ class RobotMaps:
         hi = np.clip(hi, 0, self.world_padded.shape[0])
         moved = np.ones(len(cells_xy), bool) if self._last_cells is None else (cells_xy != self._last_cells).any(1)
         self._last_cells = cells_xy.copy()
-        for n in np.flatnonzero(moved):  # one slice per robot that reached a new cell
-            (x0, y0), (x1, y1) = lo[n], hi[n]
-            self.maps_padded[n, x0:x1, y0:y1] = self.world_padded[x0:x1, y0:y1]
+        kernels.sense_squares(self.maps_padded, self.world_padded, lo, hi, self._last_lo, self._last_hi)
+        self._last_lo, self._last_hi = lo, hi
         np.minimum(self.seen_lo, lo, out=self.seen_lo)
         np.maximum(self.seen_hi, hi, out=self.seen_hi)
         if self._cum is not None and moved.any():

@@ -260,3 +260,31 @@ def test_numba_cache_dir_is_used(tmp_path):
         assert out.returncode == 0, out.stderr
         assert out.stdout.strip() == "8.0"
     assert list((tmp_path / "cache").rglob("kernels.refresh_all-*.nbi"))
+
+
+@pytest.mark.parametrize("sensor", [16, 64, 96])
+def test_sensing_copies_the_union_of_the_sensed_squares(sensor):
+    """After steps of one cell, jumps, robots standing still and robots outside the world, each map
+    is the world inside the union of the squares its robot sensed and zero elsewhere (sensing copies
+    only what a new square adds to the previous one)."""
+    w, local, n = 64, 32, 4
+    rng = np.random.default_rng(sensor)
+    world = rng.random((w, w), dtype=np.float32) + 0.5
+    rm = RobotMaps(world, n, sensor, local)
+    seen = np.zeros((n, w, w), bool)
+    cells = np.array([[5, 5], [60, 2], [30, 30], [0, 63]])
+    for t in range(40):
+        if t % 10 == 9:
+            cells = rng.integers(-40, w + 40, (n, 2))  # jumps, some far outside the world
+        else:
+            cells = cells + rng.integers(-1, 2, (n, 2)) * (rng.random((n, 1)) < 0.7)
+        rm.sense(cells)
+        h = sensor // 2
+        for r, (cx, cy) in enumerate(cells):
+            seen[r, max(cx - h, 0) : max(min(cx + h, w), 0), max(cy - h, 0) : max(min(cy + h, w), 0)] = True
+        for r in range(n):
+            assert same(rm.robot_map(r), np.where(seen[r], world, np.float32(0.0))), (t, r)
+    p = rm.pad
+    inner = rm.maps_padded[:, p : p + w, p : p + w].copy()
+    rm.maps_padded[:, p : p + w, p : p + w] = 0.0
+    assert not rm.maps_padded.any() and inner.any()  # nothing outside the world
