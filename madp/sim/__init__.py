@@ -1,5 +1,6 @@
 """The coverage world: importance map, robots, sensing, Voronoi sums, cost J, observations and the
-classical controllers. numpy/scipy only (no torch), so it imports fast and runs anywhere."""
+classical controllers. numpy/scipy and numba kernels for the hot paths (``kernels.py``; no torch), so it
+imports fast and runs anywhere."""
 
 from .controllers import ClairvoyantCVT, Controller, DecentralizedCVT, lloyd_velocity
 from .env import CoverageEnv

@@ -6,9 +6,10 @@ times J, the observation tensor and the clairvoyant step; a second pass times th
 DCVT trajectory. Every operation is timed on the library and on madp back to back, alternating which
 goes first, so machine load falls on both alike: the ratio of medians is fair on a busy machine even
 where the absolute milliseconds are not idle figures. Both run on one thread (a per-core comparison, as
-datagen runs one worker per core): madp's numpy is single-threaded, the library's torch is set to one
-thread and its OpenMP runtime is capped by ``OMP_THREAD_LIMIT=1`` (unless set otherwise before it
-loads); uncapped, its DecentralizedCVT starts one thread per robot. Without the library
+datagen runs one worker per core): madp's numpy and numba kernels are single-threaded, the library's
+torch is set to one thread and its OpenMP runtime is capped by ``OMP_THREAD_LIMIT=1`` (unless set
+otherwise before it loads); uncapped, its DecentralizedCVT starts one thread per robot. madp's kernels
+are compiled (or loaded from numba's cache) by the untimed first calls. Without the library
 (``madp[reference]``, see :mod:`madp.sim.reference`) only madp's figures are measured.
 """
 
@@ -96,7 +97,7 @@ def bench_sim(scenarios: int = 3, steps: int = 20, seed: int = 12345, library: b
     if version is not None:
         import torch
 
-        torch.set_num_threads(1)  # the library's observation tensor is torch: one core, as madp's numpy
+        torch.set_num_threads(1)  # the library's observation tensor is torch: one core, as madp's kernels
     pair = _Pair()
     with warnings.catch_warnings():
         # coverage_control builds its neighbour maps with torch.sparse_coo_tensor, which warns each call.
