@@ -18,6 +18,7 @@ import numpy as np
 
 from . import kernels
 from .kernels import BLOCK  # rows per block of the block prefix sums
+from .observations import resize_windows
 
 
 def robot_cells(positions_m: np.ndarray) -> np.ndarray:
@@ -106,8 +107,6 @@ class RobotMaps:
         """The local maps resized to [N, out, out] float32, read straight from the padded maps: bit for
         bit ``resize_maps(self.local_maps(cells_xy), out_size)``, without the crops' copy, and
         skipping what lies outside each robot's sensed box (zeros either way)."""
-        from .observations import resize_windows
-
         starts = np.asarray(cells_xy, dtype=np.int64) - self.local_size // 2 + self.pad
         box = np.concatenate([self.seen_lo[:, :1], self.seen_hi[:, :1], self.seen_lo[:, 1:], self.seen_hi[:, 1:]], 1)
         return resize_windows(self.maps_padded, starts, self.local_size, out_size, box)
