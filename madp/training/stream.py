@@ -13,7 +13,10 @@ Order of one epoch, a pure function of (seed, epoch) and the manifests:
    (its own RNG, ``default_rng([seed, epoch, stream])``) and yields exactly ``per_stream`` samples,
    the same number for every stream (the smallest stream's count rounded down to whole batches),
    so ranks stay in lockstep; the few surplus samples of an epoch are skipped, different ones each
-   epoch.
+   epoch;
+4. with datasets of several swarm sizes N, each stream regroups its samples so that every batch
+   holds one N (a sample waits for ``batch_size`` of its size); only its last batches mix sizes,
+   padded with a ``valid`` mask (:func:`collate_swarms`). One N: the order of step 3 unchanged.
 
 Resuming mid-epoch: the position is (epoch, samples already yielded per stream). A resumed stream
 replays its reads and buffer draws up to that point without handing the samples out (decoding
@@ -28,7 +31,7 @@ from typing import Iterator
 
 import numpy as np
 import torch
-from torch.utils.data import IterableDataset, get_worker_info
+from torch.utils.data import IterableDataset, default_collate, get_worker_info
 
 from madp.data_schema import Manifest, iter_shard
 
@@ -129,25 +132,38 @@ class ShardStream(IterableDataset):
         # sample including skipped ones, so a resumed epoch transforms exactly as an unbroken one.
         aug = np.random.default_rng([self.seed, epoch, stream, 0xD4]).integers(0, D4_SIZE, per) \
             if self.augment == "d4" else None
-        emitted = 0
+        for emitted, out in enumerate(self._batched_by_size(self._shuffled(streams[stream], rng))):
+            if emitted >= per:
+                return
+            if emitted >= skip:
+                yield self._emit(out, aug, emitted)
+
+    def _shuffled(self, shard_ids: list[int], rng: np.random.Generator) -> Iterator[tuple]:
+        """The samples of ``shard_ids`` through the shuffle buffer (one ``rng`` draw per sample out)."""
         buffer: list[tuple] = []
-        for sample in self._samples(streams[stream]):
+        for sample in self._samples(shard_ids):
             if len(buffer) < self.buffer_size:
                 buffer.append(sample)
                 continue
             j = int(rng.integers(len(buffer)))
             out, buffer[j] = buffer[j], sample
-            if emitted >= per:
-                return
-            if emitted >= skip:
-                yield self._emit(out, aug, emitted)
-            emitted += 1
-        while buffer and emitted < per:
-            j = int(rng.integers(len(buffer)))
-            out = buffer.pop(j)
-            if emitted >= skip:
-                yield self._emit(out, aug, emitted)
-            emitted += 1
+            yield out
+        while buffer:
+            yield buffer.pop(int(rng.integers(len(buffer))))
+
+    def _batched_by_size(self, samples: Iterator[tuple]) -> Iterator[tuple]:
+        """``samples`` regrouped so that every run of ``batch_size`` holds one swarm size N: a sample
+        waits until ``batch_size`` of its size have arrived, and the rest go out at the end, smallest N
+        first (those last batches mix sizes; :func:`collate_swarms` pads them). Datasets of one N
+        pass through in their order; several N (e.g. swarms of 32 and 128) batch without padding."""
+        pending: dict[int, list[tuple]] = {}
+        for sample in samples:
+            group = pending.setdefault(len(sample[1]), [])
+            group.append(sample)
+            if len(group) == self.batch_size:
+                yield from pending.pop(len(sample[1]))
+        for n in sorted(pending):
+            yield from pending[n]
 
     def _emit(self, sample: tuple, aug: np.ndarray | None, k: int) -> dict:
         d = _to_tensors(sample)
@@ -161,6 +177,26 @@ class ShardStream(IterableDataset):
             for b in iter_shard(self.paths[s], self.formats[s]):
                 for i in range(b.num_samples):
                     yield b.observations[i], b.positions[i], b.actions[i], b.episode_id[i], b.step[i]
+
+
+def collate_swarms(samples: list[dict]) -> dict:
+    """A batch of samples: stacked as torch's default collate does when they share N; otherwise
+    padded to the largest N (``obs``, ``pos_m``, ``actions`` zero there) with ``valid [B, N]`` bool
+    marking the real robots. Only the last batches of a stream mix sizes
+    (:meth:`ShardStream._batched_by_size`)."""
+    sizes = [len(s["pos_m"]) for s in samples]
+    if len(set(sizes)) == 1:
+        return default_collate(samples)
+    b, n = len(samples), max(sizes)
+    out = {key: samples[0][key].new_zeros((b, n, *samples[0][key].shape[1:])) for key in ("obs", "pos_m", "actions")}
+    valid = torch.zeros(b, n, dtype=torch.bool)
+    for i, (s, k) in enumerate(zip(samples, sizes)):
+        for key in out:
+            out[key][i, :k] = s[key]
+        valid[i, :k] = True
+    out.update(valid=valid, episode_id=torch.tensor([s["episode_id"] for s in samples]),
+               step=torch.tensor([s["step"] for s in samples]))
+    return out
 
 
 def _to_tensors(sample: tuple) -> dict:

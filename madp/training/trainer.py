@@ -42,7 +42,7 @@ from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
 
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
-from .stream import ShardStream, StreamPosition
+from .stream import ShardStream, StreamPosition, collate_swarms
 
 
 # --- environment ---------------------------------------------------------------------------------
@@ -74,15 +74,17 @@ def step_generator(seed: int, step: int, device: torch.device, stream: int = 0) 
     return g
 
 
-def step_noise(raw, generator: torch.Generator, batch: dict, parts: int) -> tuple:
+def step_noise(raw, generator: torch.Generator, batch: dict, parts: int, num_robots: int | None = None) -> tuple:
     """The diffusion steps ``k [P, B]`` and noise ``[P, B, N, 2]`` of one optimizer step's global batch.
 
     The global batch is ``parts`` = ranks x micro-batches pieces of ``B`` samples; one draw covers it
     (``k`` for all, then the noise for all) and each piece takes its slice, so a sample's noise
     depends on its place in the global batch, not on how many processes share it: ``torchrun
     --nproc_per_node R`` equals one process with ``--grad-accum R`` and R times the loader workers.
-    With one part this is exactly what ``MADP.loss`` would draw itself."""
+    With one part this is exactly what ``MADP.loss`` would draw itself. ``num_robots``: the largest N
+    of the datasets (default the batch's), so that a part of smaller swarms takes ``noise[..., :n, :]``."""
     b, n = batch["actions"].shape[:2]
+    n = max(n, num_robots or 0)
     device = batch_device(raw)
     k = raw.schedule.sample_timesteps(b * parts, device, generator)
     noise = torch.randn((b * parts, n, raw.config.action_dim), generator=generator, device=device, dtype=raw.dtype)
@@ -98,12 +100,17 @@ def batch_loss(model, raw, batch: dict, cfg: TrainConfig, draws: tuple | None, d
     obs = batch["obs"].to(device, non_blocking=True)
     pos = batch["pos_m"].to(device, non_blocking=True)
     act = raw.normalize_actions(batch["actions"].to(device, non_blocking=True))
+    valid = batch["valid"].to(device) if "valid" in batch else None  # padding of mixed swarm sizes
     autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else nullcontext()
     with autocast:
         if cfg.model == "madp":
             k, noise = draws
-            return model(obs, pos, act, None, None, k, noise)  # forward = DDPM loss (through DDP if wrapped)
-        return torch.nn.functional.mse_loss(model(obs, pos).float(), act)
+            # forward = DDPM loss (through DDP if wrapped); noise drawn for the largest N, sliced to this batch's
+            return model(obs, pos, act, valid, None, k, noise[:, :obs.shape[1]])
+        if valid is None:
+            return torch.nn.functional.mse_loss(model(obs, pos).float(), act)
+        w = valid.unsqueeze(-1).float()
+        return ((model(obs, pos, valid).float() - act).square() * w).sum() / (w.sum() * act.shape[-1])
 
 
 # --- the run -------------------------------------------------------------------------------------
@@ -117,16 +124,16 @@ class Trainer:
         self.init_meta: dict = {}
         self.manifests = [open_dataset(d) for d in cfg.datasets]
         self.manifest = self.manifests[0]
+        self.max_robots = max(m.num_robots for m in self.manifests)  # N of the largest swarms trained on
         if self.manifest.action_stats is None:
             raise ValueError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
         for i, (d, m) in enumerate(zip(cfg.datasets, self.manifests)):
             check_shards(d, m, ("train", "val") if i == 0 else ("train",))  # one read each, before use
         for d, m in zip(cfg.more_data, self.manifests[1:]):
             sim, sim0 = m.params.get("params", {}), self.manifest.params.get("params", {})
-            for key in ("num_robots", "world_size"):
-                if sim.get(key) != sim0.get(key):
-                    raise ValueError(f"{d}/manifest.json: {key} = {sim.get(key)}, but {cfg.data} has {sim0.get(key)}; "
-                                     "datasets trained together must share them")
+            if sim.get("world_size") != sim0.get("world_size"):  # swarm sizes may differ (batched by size)
+                raise ValueError(f"{d}/manifest.json: world_size = {sim.get('world_size')}, but {cfg.data} has "
+                                 f"{sim0.get('world_size')}; datasets trained together must share it")
         # Weights that stop receiving gradient decay towards zero (L2 weight decay) and turn
         # subnormal; on CPU every op on them then runs ~10x slower (LPAC-K3 fell from 106 to 14
         # samples/s as 35% of its weights went subnormal). Flushing them to zero costs nothing.
@@ -366,6 +373,7 @@ class Trainer:
                 raise RuntimeError("checkpoint position is not at a worker round and optimizer step boundary")
             self.train_data.set_position(StreamPosition(self.epoch, done_per_worker * cfg.batch_size))
             loader = DataLoader(self.train_data, batch_size=cfg.batch_size, num_workers=cfg.num_workers,
+                                collate_fn=collate_swarms,
                                 pin_memory=self.device.type == "cuda", persistent_workers=False,
                                 worker_init_fn=functools.partial(_loader_worker_init, os.getpid()))
             bar = _bar(self.progress, batches, self.batches_done, f"epoch {self.epoch + 1}/{cfg.epochs}")
@@ -376,7 +384,8 @@ class Trainer:
                 micro = self.batches_done % accum
                 if micro == 0:  # a new optimizer step
                     g = step_generator(cfg.seed, self.step, self.device, stream=0)
-                    step_draws = step_noise(self.raw, g, batch, self.world * accum) if cfg.model == "madp" else None
+                    step_draws = step_noise(self.raw, g, batch, self.world * accum, self.max_robots) \
+                        if cfg.model == "madp" else None
                     self.opt.zero_grad(set_to_none=True)
                     loss_sum = 0.0
                 part = self.rank * accum + micro
