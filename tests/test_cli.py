@@ -48,12 +48,13 @@ def test_rollout_writes_a_video(tmp_path):
     (["rollout", "--scenario", "{sc}", "--controller", "dcvt", "--video", "{sc}/r.mp4"], "s.json"),
 ])
 def test_user_errors_are_one_line(tmp_path, args, needle):
+    """In this process (the CLI's error path is the same; tests/test_reliability_errors.py runs a
+    user error as its own process too)."""
+    from tests.test_reliability_errors import assert_one_line, cli
+
     sc = tmp_path / "s.json"
     sc.write_text('{"features": [], "robots": [[1, 1]]}')
-    r = madp(*[a.format(sc=sc, tmp=tmp_path) for a in args])
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in r.stderr
+    assert_one_line(*cli(*[a.format(sc=sc, tmp=tmp_path) for a in args]), needle)
 
 
 @pytest.mark.parametrize("controller", ["madp", "lpac"])
@@ -68,8 +69,10 @@ def test_rollout_with_a_learned_controller(tmp_path, controller):
                               "robots": [[10, 10], [100, 100], [50, 20]],
                               "params": {"world_size": 128, "local_map_size": 64, "sensor_size": 16}}))
     out = tmp_path / "r.json"
-    r = madp("rollout", "--scenario", str(sc), "--controller", controller, "--steps", "2", "--out", str(out),
-             "--checkpoint", str(shipped_checkpoint(controller)))
-    assert r.returncode == 0, r.stderr
+    from tests.test_reliability_errors import cli  # in this process: a new one would spend ~5 s importing
+
+    code, err = cli("rollout", "--scenario", sc, "--controller", controller, "--steps", "2", "--out", out,
+                    "--checkpoint", shipped_checkpoint(controller))
+    assert code == 0, err
     res = json.loads(out.read_text())
     assert res["controller"] == controller and len(res["cost"]) == 3 and res["cost"][-1] != 1.0  # the robots moved

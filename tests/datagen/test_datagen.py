@@ -123,14 +123,13 @@ def test_kill_9_then_resume_gives_identical_bytes(reference, tmp_path):
 
 def test_refuses_other_parameters_and_bad_flags(reference, tmp_path):
     root, _ = reference
-    r = madp("datagen", "--n", "121", "--seed", "3", "--out", str(root), *SMALL)
-    assert r.returncode == 2 and "--overwrite" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    from tests.test_reliability_errors import assert_one_line, cli  # in this process: the same error path
+
+    assert_one_line(*cli("datagen", "--n", "121", "--seed", "3", "--out", str(root), *SMALL), "--overwrite")
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "x.txt").write_text("mine")
-    r = madp("datagen", "--n", "10", "--out", str(tmp_path / "junk"), *SMALL)
-    assert r.returncode == 2 and "not empty" in r.stderr
-    r = madp("datagen", "--n", "10", "--format", "csv", "--out", str(tmp_path / "x"), *SMALL)
-    assert r.returncode == 2 and "--format" in r.stderr
+    assert_one_line(*cli("datagen", "--n", "10", "--out", str(tmp_path / "junk"), *SMALL), "not empty")
+    assert_one_line(*cli("datagen", "--n", "10", "--format", "csv", "--out", str(tmp_path / "x"), *SMALL), "--format")
 
 
 def test_verify_names_a_corrupt_or_missing_shard(reference, tmp_path):
