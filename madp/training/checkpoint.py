@@ -28,7 +28,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 from madp.io.atomic import temp_path
-from madp.models import LPAC, MADP, LPACConfig, MADPConfig
+from madp.models import MADP, LPACConfig, MADPConfig
 
 POLICY_FILE = "policy.safetensors"
 #: What ``state.pt`` must hold, with the types its values must have.
@@ -63,7 +63,12 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
         raise ValueError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")
     try:
         config = json.loads(metadata["config"])
-        model = MADP(MADPConfig.from_dict(config)) if kind == "madp" else LPAC(LPACConfig.from_dict(config))
+        if kind == "madp":
+            model = MADP(MADPConfig.from_dict(config))
+        else:
+            from madp.models.lpac import LPAC  # torch_geometric: seconds to import, so only when needed
+
+            model = LPAC(LPACConfig.from_dict(config))
         meta = {k: json.loads(v) for k, v in metadata.items() if k not in ("kind", "config")}
     except (ValueError, TypeError, KeyError, AttributeError) as e:
         raise ValueError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None

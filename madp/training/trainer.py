@@ -38,7 +38,7 @@ from madp.data_schema.manifest import sha256_file
 from madp.io.atomic import named, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.workers import die_with_parent
-from madp.models import EMA, LPAC, MADP, lpac_config, madp_config
+from madp.models import EMA, MADP, lpac_config, madp_config
 
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
@@ -64,6 +64,8 @@ def setup_distributed() -> tuple[int, int, torch.device]:
 def build_model(cfg: TrainConfig, num_robots: int) -> torch.nn.Module:
     if cfg.model == "madp":
         return MADP(madp_config(cfg.preset))
+    from madp.models.lpac import LPAC  # torch_geometric: seconds to import, so only for LPAC-K3
+
     return LPAC(lpac_config(cfg.preset, edge_weight=cfg.edge_weight))
 
 
