@@ -15,7 +15,7 @@ from madp.training import resolve, train
 def lpac_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("lpac-data")
     cfg = DatagenConfig(400, seed=2, samples_per_shard=64, params=SimParams(world_size=256, num_robots=4, num_features=4))
-    run_datagen(cfg, root, workers=2, progress=False)
+    run_datagen(cfg, root, workers=1, progress=False)  # in this process: no worker to start
     return root
 
 

@@ -22,7 +22,7 @@ from tests.conftest import tiny_dataset
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    return tiny_dataset(tmp_path_factory, "data", workers=2)
+    return tiny_dataset(tmp_path_factory, "data")  # in this process: no worker to start
 
 
 def ids(stream):
