@@ -3,12 +3,18 @@ map, and bit-identical to a fresh full recompute, whatever path the robots took 
 included, and sensor squares as wide as the world).
 
 Written against the second batch of mutants mutmut left alive in ``madp/sim/robot_maps.py``; each
-test names the mutants it kills (``_refresh`` mutants are written ``_N``).
+test names the mutants it kills (``_refresh`` mutants are written ``_N``). The tests from
+``test_only_robots_that_moved_are_refreshed`` on are from the campaign on the numba simulator
+(2026-12-02): the incremental bookkeeping the module docstring promises (only the robots that moved
+are refreshed, nothing piles up while no block sums are asked for) and the sensed box that
+``resized_local_maps`` skips outside of.
 """
 
 import numpy as np
 import pytest
 
+from madp.sim import kernels
+from madp.sim.observations import resize_maps
 from madp.sim.robot_maps import RobotMaps
 
 
@@ -71,3 +77,95 @@ def test_running_sums_are_float32():
     rm.sense(np.array([[3, 3], [40, 50]]))
     rm.row_sums(np.array([0]), np.array([3]), np.array([0]), np.array([w]))
     assert rm._within.dtype == np.float32 and rm._within.nbytes == 2 * w * w * 2 * 4
+
+
+NOT_A_CELL = -(1 << 39)  # refresh_blocks skips rows below this: "robot did not move"
+
+
+def _spy_refresh(monkeypatch) -> list[np.ndarray]:
+    calls: list[np.ndarray] = []
+    real = kernels.refresh_blocks
+
+    def spy(maps_padded, pad, within, tot, cum, cells, sensor_half):
+        calls.append(np.array(cells))
+        return real(maps_padded, pad, within, tot, cum, cells, sensor_half)
+
+    monkeypatch.setattr(kernels, "refresh_blocks", spy)
+    return calls
+
+
+@pytest.mark.parametrize("as_cells", [lambda c: np.array(c, np.int64), lambda c: np.array(c, np.int32), lambda c: c],
+                         ids=["int64", "int32", "list"])
+def test_only_robots_that_moved_are_refreshed(monkeypatch, as_cells):
+    """The module's promise: after a step only the blocks under the squares of robots that moved to a
+    new cell are recomputed; the others reach ``refresh_blocks`` as "not a cell" (< -2^39), for cells of
+    any integer dtype. Kills sense_32 / _37 / _41 (every robot counted as moved: all refreshed every
+    step), sense_77 (the mark -(1 >> 40) = 0, a real cell), sense_76 (the mark +2^40, not the
+    documented < -2^39) and sense_3 / _5 (int32 cells kept int32, which turns the mark -2^40 into 0).
+    The sums stay bit-identical to a fresh build throughout."""
+    w, n = 64, 3
+    rng = np.random.default_rng(7)
+    world = rng.random((w, w), dtype=np.float32)
+    rm = RobotMaps(world, n, 16, 32)
+    rm.sense(as_cells([[10, 10], [30, 40], [50, 5]]))
+    rm.block_sums()  # built whole
+    calls = _spy_refresh(monkeypatch)
+    steps = [([[11, 10], [30, 40], [50, 5]], [0]),      # robot 0 one cell on
+             ([[11, 10], [30, 40], [50, 5]], []),       # nobody moved
+             ([[11, 10], [31, 41], [49, 5]], [1, 2])]
+    q = (np.repeat(np.arange(n), w), np.tile(np.arange(w), n), np.zeros(n * w, np.int64), np.full(n * w, w))
+    for cells, moved in steps:
+        calls.clear()
+        rm.sense(as_cells(cells))
+        s0, s1 = rm.row_sums(*q)
+        got = np.concatenate(calls) if calls else np.empty((0, 2), np.int64)
+        refreshed = sorted({r for c in calls for r in range(n) if c[r, 0] >= NOT_A_CELL})
+        assert refreshed == moved
+        assert (got[got[:, 0] >= NOT_A_CELL] == np.array(cells)[moved]).all()
+        f0, f1 = _fresh(rm, world, 16, 32).row_sums(*q)
+        assert np.array_equal(s0, f0) and np.array_equal(s1, f1)
+
+
+def test_sensing_without_block_sums_keeps_no_backlog():
+    """sense_67 (``and`` → ``or``: the cells of every step queued while no block sums exist). An
+    episode whose controller never asks for the robots' block sums (the clairvoyant expert) must not
+    keep one [N, 2] array per step; when block sums are first asked for they are built whole."""
+    w = 64
+    rm = RobotMaps(np.ones((w, w), np.float32), 2, 16, 32)
+    for k in range(20):
+        rm.sense(np.array([[k, 2 * k], [w - 1 - k, 5]]))
+    assert rm._stale == []
+    cum, _ = rm.block_sums()
+    assert cum[0, 5, -1, 0] == np.float32(rm.robot_map(0)[5].sum())
+
+
+def test_resized_local_maps_read_nothing_outside_the_sensed_box():
+    """resized_local_maps_10 / _24 / _29 (no box passed: the whole window read). The maps are zero
+    outside each robot's sensed box (seen_lo, seen_hi), which is the union of its sensed squares, and
+    ``resized_local_maps`` promises to skip what lies outside it: poisoning the maps there with NaN
+    must leave the resized maps, bit for bit ``resize_maps(local_maps)``, unchanged."""
+    w, s, n = 64, 32, 3
+    rng = np.random.default_rng(3)
+    rm = RobotMaps(rng.random((w, w), dtype=np.float32) + 0.5, n, 16, s)
+    path = [[[20, 20], [0, 63], [-40, 10]], [[22, 25], [1, 60], [-40, 10]]]
+    for cells in path:
+        rm.sense(np.array(cells))
+    cells = np.array([[21, 24], [2, 58], [5, 10]])
+    p = rm.pad
+    for r, sq in enumerate(np.array(path).transpose(1, 0, 2)):  # the box is the union of the squares
+        lo = np.clip(sq - 8 + p, 0, w + 2 * p).min(0)
+        hi = np.clip(sq + 8 + p, 0, w + 2 * p).max(0)
+        if (hi > lo).all():
+            assert (rm.seen_lo[r] == lo).all() and (rm.seen_hi[r] == hi).all()
+        else:  # robot 2 stayed farther than half a sensor outside the world: saw nothing
+            assert not rm.robot_map(r).any()
+    want = resize_maps(rm.local_maps(cells), 8)
+    assert np.array_equal(rm.resized_local_maps(cells, 8), want)
+    assert want[0].any() and want[1].any() and not want[2].any()
+    inside = np.zeros(rm.maps_padded.shape, bool)
+    for r in range(n):
+        (x0, y0), (x1, y1) = rm.seen_lo[r], rm.seen_hi[r]
+        inside[r, x0:x1, y0:y1] = True
+    assert not rm.maps_padded[~inside].any()  # zero outside the box
+    rm.maps_padded[~inside] = np.nan
+    assert np.array_equal(rm.resized_local_maps(cells, 8), want)
