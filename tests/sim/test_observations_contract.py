@@ -4,7 +4,10 @@ pixels).
 
 Written against the mutants mutmut left alive in ``madp/sim/observations.py`` (issue 17); each test
 names the mutants it kills. ``tests/sim/test_geometry.py`` already checks the default resize against
-torch and the boundary map's closed form at the default sizes.
+torch and the boundary map's closed form at the default sizes. The tests from
+``test_resize_windows_reads_every_row_of_a_tall_map`` on are from the campaign on the numba simulator
+(2026-12-02): ``resize_windows`` on maps that are not square and with starts and boxes of other
+integer dtypes, ``resize_maps`` of float64 maps, and ``stack_observations``' default local size.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import numpy as np
 import pytest
 
 from madp.sim.observations import (boundary_maps, neighbour_maps, observation_tensor, raw_boundary_maps,
-                                   resize_maps)
+                                   resize_maps, resize_matrix, resize_windows, stack_observations)
 
 
 def test_resize_any_leading_dims_any_output_size_float32():
@@ -110,3 +113,58 @@ def test_observation_tensor_other_sizes_and_default():
     assert obs[:, 1:3].any() and obs[:, 3].any()
     default = observation_tensor(local, cells, pos, 64, 50.0)
     assert default.shape == (3, 4, 32, 32) and default.dtype == np.float32
+
+
+def _dense_resize(window: np.ndarray, out: int) -> np.ndarray:
+    r = resize_matrix(window.shape[-1], out).astype(np.float64)
+    return r @ window.astype(np.float64) @ r.T
+
+
+def test_resize_windows_reads_every_row_of_a_tall_map():
+    """resize_windows__mutmut_14 (the default box's row bound taken from ``shape[2]``: rows of a
+    [K, H, W] map past W skipped). The windows of maps taller than wide, without a box, resize
+    everything under them: the dense R · window · Rᵀ (float64, to float32 rounding)."""
+    rng = np.random.default_rng(5)
+    maps = rng.random((2, 80, 40), dtype=np.float32)
+    starts = np.array([[40, 4], [8, 0]])
+    got = resize_windows(maps, starts, 32, 8)
+    for k, (x0, y0) in enumerate(starts):
+        np.testing.assert_allclose(got[k], _dense_resize(maps[k, x0:x0 + 32, y0:y0 + 32], 8), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [np.uint64, np.float64, np.int32])
+def test_resize_windows_takes_starts_and_boxes_of_any_number_type(dtype):
+    """resize_windows__mutmut_40 / _42 (the starts not cast to int64: the kernel cannot index with
+    float64). Window corners and box bounds are cell coordinates, whole numbers of whatever array
+    type; the result is the same as with int64 ones. (The box's _44 / _46 are equivalent: the
+    kernel only compares with its bounds, which works for any number type.)"""
+    rng = np.random.default_rng(6)
+    maps = rng.random((2, 64, 64), dtype=np.float32)
+    starts = np.array([[0, 16], [32, 8]])
+    box = np.array([[0, 64, 20, 50], [40, 64, 0, 64]])
+    want = resize_windows(maps, starts, 32, 8, box)
+    assert np.array_equal(resize_windows(maps, starts.astype(dtype), 32, 8, box), want)
+    assert np.array_equal(resize_windows(maps, starts, 32, 8, box.astype(dtype)), want)
+    assert want.any()
+
+
+def test_resize_maps_reads_float64_maps_as_float32():
+    """resize_maps__mutmut_15 / _17 (the maps not cast to float32: the kernel then multiplies the
+    float32 weights by float64 values and rounds differently). The resize is a float32 computation
+    on the float32 maps: float64 input gives, bit for bit, what its float32 values give."""
+    maps = np.random.default_rng(7).random((3, 64, 64))
+    assert np.array_equal(resize_maps(maps, 8), resize_maps(maps.astype(np.float32), 8))
+
+
+def test_stack_observations_defaults_to_256_cell_windows():
+    """stack_observations__mutmut_1 (default ``local_size`` 257). The default is the library's
+    256-cell local window: resized 256 × 256 local maps stacked without ``local_size`` are exactly
+    ``observation_tensor`` of the raw maps (whose size it reads), boundary channel included."""
+    rng = np.random.default_rng(8)
+    pos = np.array([[10.0, 20.0], [100.0, 150.0], [250.0, 3.0]])
+    cells = np.floor(pos + 0.5).astype(np.int64)
+    local = rng.random((3, 256, 256), dtype=np.float32)
+    stacked = stack_observations(resize_maps(local), cells, pos, 256, 128.0)
+    assert np.array_equal(stacked, observation_tensor(local, cells, pos, 256, 128.0))
+    np.testing.assert_array_equal(stacked[:, 3], boundary_maps(cells, 256, 256, 32))
+    assert stacked[:, 3].any()

@@ -169,3 +169,19 @@ def test_resized_local_maps_read_nothing_outside_the_sensed_box():
     assert not rm.maps_padded[~inside].any()  # zero outside the box
     rm.maps_padded[~inside] = np.nan
     assert np.array_equal(rm.resized_local_maps(cells, 8), want)
+
+
+@pytest.mark.parametrize("as_index", [lambda a: a.astype(np.float64), lambda a: a.astype(np.int32), lambda a: a.tolist()],
+                         ids=["float64", "int32", "list"])
+def test_row_sums_take_whole_numbers_of_any_array_type(as_index):
+    """row_sums__mutmut_5 / _7 (robot, column and rows not cast to int64: the kernel cannot index
+    with float64). Robots, columns and row bounds are whole numbers, whatever array type holds them:
+    the sums are the same as with int64 arrays."""
+    w = 64
+    rng = np.random.default_rng(11)
+    rm = RobotMaps(rng.random((w, w), dtype=np.float32), 2, 16, 32)
+    rm.sense(np.array([[10, 20], [50, 60]]))
+    q = _queries(w, 2, rng)
+    want = rm.row_sums(*q)
+    got = rm.row_sums(*(as_index(a) for a in q))
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]) and want[0].any()
