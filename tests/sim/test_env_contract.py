@@ -4,7 +4,10 @@ in float64 whatever the actions' dtype, never warns, leaves robots whose speed i
 place, keeps positions in (0, W) without snapping ones near the border, and counts its steps.
 
 Written against the second batch of mutants mutmut left alive in ``madp/sim/env.py``; each test
-names the mutants it kills.
+names the mutants it kills. The tests from ``test_start_positions_are_float64_whatever_their_type``
+on are from the campaign on the numba simulator (2026-12-02): start positions of other array types,
+the refusal of a world with J(0) = 0 (and only then), the library's position history and its
+oscillation check (``CoverageSystem::CheckOscillation``, transcribed below as the oracle).
 """
 
 import warnings
@@ -13,9 +16,11 @@ import numpy as np
 import pytest
 
 from madp.sim import CoverageEnv, Scenario, SimParams
+from madp.sim.controllers import DecentralizedCVT
 from madp.sim import params as params_mod
 from madp.sim.env import SPEED_EPS
 from madp.sim.idf import importance_map
+from madp.sim.scenario import ScenarioError
 
 FEATS = np.array([[100.0, 100.0, 30.0, 1.0], [200.0, 60.0, 20.0, 0.8]])
 ROBOTS = np.array([[90.0, 95.0], [150.0, 120.0], [5.0, 250.0]])
@@ -106,3 +111,100 @@ def test_steps_are_counted():
         assert env.steps == k
     env.reset()
     assert env.steps == 0
+
+
+@pytest.mark.parametrize("as_robots", [lambda r: r.astype(np.float32), lambda r: r.astype(np.int64).tolist()],
+                         ids=["float32", "int list"])
+def test_start_positions_are_float64_whatever_their_type(as_robots):
+    """reset_4 / _6 (the start positions kept in the scenario's own dtype: float32 start positions
+    make J(0) and every Voronoi cell be computed from float32 sites). Start positions of any type
+    are their float64 values: the same positions, J(0) and trajectory as float64 ones."""
+    robots = np.array([[90.25, 95.5], [150.0, 120.125], [5.0, 250.0]])
+    p = SimParams(world_size=256, num_robots=3, num_features=2, local_map_size=64, sensor_size=16,
+                  comm_radius_m=100.0)
+    given = as_robots(robots)
+    want = CoverageEnv(Scenario(FEATS, np.array(given, dtype=np.float64), p))
+    got = CoverageEnv(Scenario(FEATS, given, p))
+    assert got.positions_m.dtype == np.float64 and np.array_equal(got.positions_m, want.positions_m)
+    assert got.cost0 == want.cost0
+    ctrl_a, ctrl_b = DecentralizedCVT(), DecentralizedCVT()
+    for _ in range(3):
+        assert np.array_equal(got.step(ctrl_b(got)), want.step(ctrl_a(want)))
+
+
+@pytest.mark.parametrize("name,seed,where", [("flat", 3, "scenario flat"), ("", 3, "scenario 3")])
+def test_a_world_without_importance_is_refused_with_its_name(name, seed, where):
+    """reset_31 (``>= 0``: J(0) = 0 accepted), _33 .. _37 (the message dropped, ``name and seed``,
+    its text changed). J(t)/J(0) needs J(0) > 0; a map that is 0 everywhere gives J(0) = 0."""
+    p = SimParams(world_size=256, num_robots=3, num_features=2, local_map_size=64, sensor_size=16)
+    with pytest.raises(ScenarioError) as e:
+        CoverageEnv(Scenario(FEATS, ROBOTS, p, name=name, seed=seed), world_map=np.zeros((256, 256)))
+    assert str(e.value) == (f"{where}: J(0) = 0.0 (no importance away from the robots), so J(t)/J(0) is "
+                            "undefined")
+
+
+def test_a_small_but_positive_j0_is_accepted():
+    """reset_32 (``> 1``: 0 < J(0) <= 1 refused). Importance is relative: scaling the map by 1e-9
+    scales J by 1e-9 and changes no normalised cost."""
+    p = SimParams(world_size=256, num_robots=3, num_features=2, local_map_size=64, sensor_size=16)
+    big = CoverageEnv(Scenario(FEATS, ROBOTS, p))
+    small = CoverageEnv(Scenario(FEATS, ROBOTS, p), world_map=big.world_map * 1e-9)
+    assert 0 < small.cost0 < 1 < big.cost0
+    np.testing.assert_allclose(small.cost0, big.cost0 * 1e-9, rtol=1e-9)
+
+
+def test_position_history_is_the_librarys_deque():
+    """_record_history_4 (``pop(1)``). The library's history of ``history_size`` positions: while
+    not full each step appends; when full a step drops the oldest entry *instead of* appending (so
+    the history alternates between full and one short). With ``history_size`` 1 it alternates
+    between empty and one entry, which ``pop(1)`` cannot do."""
+    env = make_env(history_size=3)
+    seen = [env.positions_m.copy()]
+    for k in range(6):
+        seen.append(env.step(np.full((3, 2), 0.5 + k)).copy())
+    # steps 1, 2 append; 3 drops; 4 appends; 5 drops; 6 appends
+    want = [seen[2], seen[4], seen[6]]
+    assert len(env.history) == 3 and all(np.array_equal(a, b) for a, b in zip(env.history, want))
+    env = make_env(history_size=1)
+    for k in range(4):
+        env.step(np.ones((3, 2)))
+        assert len(env.history) == (0 if k % 2 == 0 else 1)
+        assert not env.oscillating().any()
+
+
+def _library_oscillation(history: list[np.ndarray], check: bool) -> np.ndarray:
+    """CoverageSystem::CheckOscillation per robot: false if not checking or fewer than 3 entries;
+    else count, from the newest backwards over min(6, size - 1) entries, those closer than kLargeEps
+    (1e-4) to the newest; oscillating if the count exceeds 2."""
+    n = len(history[0]) if history else 0
+    out = np.zeros(n, bool)
+    for r in range(n):
+        h = [e[r] for e in history]
+        if not check or len(h) < 3:
+            continue
+        last = h[-1]
+        count = sum(1 for pt in reversed(h[len(h) - min(6, len(h) - 1):]) if np.hypot(*(pt - last)) < 1e-4)
+        out[r] = count > 2
+    return out
+
+
+@pytest.mark.parametrize("check", [True, False])
+def test_oscillation_is_the_librarys_check(check):
+    """oscillating_1 (``and``: a history is checked with check_oscillations off), _14 / _15 / _16
+    (7 entries, or the oldest too, or one fewer), _27 (compared with the second newest), _29
+    (``<=``: an entry exactly 1e-4 m away counts). Histories of 1 to 12 entries drawn from three
+    points: P0, P1 exactly 1e-4 m from P0 (x = 1e-4 and 2e-4: the difference is exact), P2 5e-5 m
+    from P0."""
+    pts = np.array([[1e-4, 3.0], [2e-4, 3.0], [1e-4, 3.0 + 5e-5]])
+    assert np.linalg.norm(pts[1] - pts[0]) == 1e-4
+    env = make_env(check_oscillations=check)
+    rng = np.random.default_rng(4)
+    n = 400
+    env.num_robots = n  # oscillating() reads only the history and the robot count
+    hits = 0
+    for length in range(1, 13):
+        env.history = [pts[rng.choice(3, n, p=[0.55, 0.25, 0.2])] for _ in range(length)]
+        want = _library_oscillation(env.history, check)
+        assert np.array_equal(env.oscillating(), want), length
+        hits += want.sum()
+    assert (hits > 100) == check
