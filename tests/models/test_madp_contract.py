@@ -282,3 +282,36 @@ def test_forward_is_loss_with_every_argument(gen):
         got = model(obs, pos, act, None, torch.Generator().manual_seed(9), k, noise)
         assert torch.equal(got, want)
         assert not torch.equal(model(obs, pos, act, None, None, k, -noise), want)
+
+
+def test_padding_robots_never_reach_the_cnn(gen):
+    """embed_tokens_5 (``valid`` not passed to ``apply_per_robot``: padding images run through the
+    CNN). Padding never enters BatchNorm's batch statistics (``apply_per_robot``'s promise, which
+    ``embed_tokens`` relies on): in training mode the valid robots' tokens, and the running
+    statistics, do not depend on what the padding rows' observations hold."""
+    torch.manual_seed(0)
+    model = MADP(tiny_madp_config()).train()
+    b, n = 2, 4
+    obs, pos = swarm(gen, b, n, 300)
+    valid = torch.tensor([[True, True, True, False], [True, True, False, False]])
+    other = obs.clone()
+    other[~valid] = 5.0 + 3.0 * torch.rand(int((~valid).sum()), 4, 32, 32, generator=gen)
+    bn = next(m for m in model.cnn.modules() if isinstance(m, torch.nn.BatchNorm2d))
+    stats = []
+    tokens = []
+    for o in (obs, other):
+        bn.reset_running_stats()
+        with torch.no_grad():
+            mask = model.attention_mask(pos, valid)
+            tokens.append(model.embed_tokens(o, pos, mask, valid))
+        stats.append(bn.running_mean.clone())
+    assert torch.equal(tokens[0], tokens[1]) and torch.equal(stats[0], stats[1])
+    assert (tokens[0][~valid] == 0).all() and (tokens[0][valid] != 0).any()
+
+
+def test_pack_rows_of_no_items_is_two_empty_long_tensors():
+    """pack_rows_16 / _19 / _22 / _25 (``dtype=torch.long`` dropped or None: ``torch.tensor([])`` is
+    float32). ``(row [U], offset [U])`` are long for every U, U = 0 included, so they can index."""
+    row, off = pack_rows(torch.zeros(0, dtype=torch.long), 4)
+    assert row.dtype == torch.long and off.dtype == torch.long and row.shape == off.shape == (0,)
+    assert torch.arange(3)[row].shape == (0,)
