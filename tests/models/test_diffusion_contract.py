@@ -8,6 +8,8 @@ mutations it guards.
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import pytest
 import torch
 
@@ -143,3 +145,14 @@ def test_errors_say_what_was_expected():
         sched.previous_timestep(5)
     with pytest.raises(ValueError, match=r"^timestep not in the DDIM subsequence$"):
         sched.previous_timestep(torch.tensor([1000, 5]))
+
+
+@pytest.mark.parametrize("k_train, steps", [(1000, 7), (1000, 1000), (5000, 2947), (10000, 2687)])
+def test_ddim_timesteps_are_exactly_rounded_for_any_k(k_train, steps):
+    """ddim_timesteps__mutmut_12 / _16 (the index ``arange`` in int64: ``i * K / S`` is then a float32
+    quotient, whose rounding error exceeds the distance to the next .5 once K·S > 2^23; K is any
+    num_train_steps >= 1). ``k_i = round(i K / S)`` exactly (half to even, as ``torch.round``):
+    e.g. K = 5000, S = 2947, i = 2441 gives 4141.4998..., so 4141, not 4142."""
+    want = [round(Fraction(i * k_train, steps)) for i in range(steps, -1, -1)]
+    got = DDPMSchedule(k_train).ddim_timesteps(steps)
+    assert got.dtype == torch.long and got.tolist() == want
