@@ -10,6 +10,10 @@ directory, so a green CI run always includes the reference comparisons. Use the 
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the CLI does: small products, no BLAS threads
+# One torch (OpenMP) thread per process, here and in the commands the tests start (they inherit it): the
+# tests' models are tiny and pytest-xdist already runs a worker per core; with more threads than cores
+# OpenMP's hand-offs make small ops many times slower (a 2-core CI: 4 workers x 2 threads).
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 from pathlib import Path
 
 import pytest

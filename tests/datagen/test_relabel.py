@@ -2,8 +2,6 @@
 
 import dataclasses
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +18,11 @@ SMALL = ["--num-robots", "4", "--num-features", "4", "--world-size", "256", "--s
          "--max-steps", "50", "--seed", "3"]
 
 
-def madp(*args):
-    return subprocess.run([sys.executable, "-m", "madp.cli", *map(str, args)], capture_output=True, text=True)
+def madp(*args) -> None:
+    """``madp ARGS`` in this process (no interpreter and torch start-up; ``--workers 2`` still starts two
+    worker processes); it must succeed."""
+    code, err = cli(*args)
+    assert code == 0, err
 
 
 def tree_bytes(root: Path) -> dict:
@@ -38,16 +39,13 @@ def first_episode(root: Path):
 @pytest.fixture(scope="module")
 def madp_relabelled(tmp_path_factory):
     root = tmp_path_factory.mktemp("relabel") / "w1"
-    r = madp("datagen", "--n", 44, "--out", root, "--workers", 1, "--policy", shipped_checkpoint("madp"),
-             "--beta", 0.25, *SMALL)
-    assert r.returncode == 0, r.stderr
+    madp("datagen", "--n", 44, "--out", root, "--workers", 1, "--policy", shipped_checkpoint("madp"), "--beta", 0.25, *SMALL)
     return root
 
 
 def test_relabelled_bytes_do_not_depend_on_workers(madp_relabelled, tmp_path):
-    r = madp("datagen", "--n", 44, "--out", tmp_path / "w2", "--workers", 2, "--policy", shipped_checkpoint("madp"),
-             "--beta", 0.25, *SMALL)
-    assert r.returncode == 0, r.stderr
+    madp("datagen", "--n", 44, "--out", tmp_path / "w2", "--workers", 2, "--policy", shipped_checkpoint("madp"),
+         "--beta", 0.25, *SMALL)
     assert tree_bytes(tmp_path / "w2") == tree_bytes(madp_relabelled)
 
 
@@ -81,9 +79,8 @@ def test_labels_are_the_expert_at_the_states_the_learner_visits(madp_relabelled)
 
 def test_beta_one_is_the_expert_rollout(tmp_path):
     """beta = 1: every step executes the expert's action, so the states are the expert's own."""
-    r = madp("datagen", "--n", 44, "--out", tmp_path / "b1", "--workers", 1, "--policy", shipped_checkpoint("lpac"),
-             "--beta", 1, *SMALL)
-    assert r.returncode == 0, r.stderr
+    madp("datagen", "--n", 44, "--out", tmp_path / "b1", "--workers", 1, "--policy", shipped_checkpoint("lpac"), "--beta", 1,
+         *SMALL)
     m, b, first = first_episode(tmp_path / "b1")
     env = CoverageEnv(Scenario.random(int(b.scenario_seed[0]), PARAMS))
     expert = ClairvoyantCVT()

@@ -1,14 +1,12 @@
 """madp eval --video K: which environments are filmed, the MP4s read back, and filming changes no result."""
 
-import subprocess
-import sys
-
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from madp.eval.runner import EvalConfig, owned_files, run_suite, video_envs
 from madp.eval.suites import suite_envs
+from tests.test_reliability_errors import cli
 
 pytest.importorskip("cv2")
 
@@ -30,10 +28,9 @@ def test_eval_writes_videos_and_they_change_no_result(tmp_path, checkpoints):
     from tests.test_video import assert_video
 
     lpac = str(checkpoints / "lpac.safetensors")
-    r = subprocess.run([sys.executable, "-m", "madp.cli", "eval", "--suite", "uniform", "--num-envs", "3", "--steps", "4",
-                        "--controllers", "clairvoyant,lpac", "--lpac", lpac, "--workers", "1", "--video", "2",
-                        "--out", str(tmp_path / "with")], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    code, err = cli("eval", "--suite", "uniform", "--num-envs", "3", "--steps", "4", "--controllers", "clairvoyant,lpac",
+                    "--lpac", lpac, "--workers", "1", "--video", "2", "--out", tmp_path / "with")  # in this process: no start-up
+    assert code == 0, err
     d = tmp_path / "with" / "uniform"
     names = sorted(p.name for p in (d / "videos").iterdir())
     assert names == sorted(f"uniform-00{i}-{c}.mp4" for i in (0, 1) for c in ("clairvoyant", "lpac"))

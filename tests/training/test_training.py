@@ -18,6 +18,7 @@ from madp.sim import SimParams
 from madp.training import ShardStream, StreamPosition, load_policy, resolve, train
 from madp.training.config import learning_rate
 from tests.conftest import tiny_dataset
+from tests.test_reliability_errors import cli
 
 
 @pytest.fixture(scope="module")
@@ -116,9 +117,8 @@ def test_checkpoint_loads_without_code_and_refuses_garbage(dataset, tmp_path):
     bad.write_bytes((run / "checkpoints" / "best" / "policy.safetensors").read_bytes()[:1000])
     with pytest.raises(ValueError, match="bad.safetensors"):
         load_policy(bad)
-    r = subprocess.run([sys.executable, "-m", "madp.cli", "train", "--data", str(dataset), "--out", str(run)],
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and "--resume" in r.stderr
+    code, err = cli("train", "--data", dataset, "--out", run)  # in this process, as madp runs it: no start-up
+    assert code == 2 and "--resume" in err
 
 
 _BN_BUFFERS = ("running_mean", "running_var", "num_batches_tracked")
@@ -143,9 +143,14 @@ def test_torchrun_two_cpu_processes_stay_in_sync_and_equal_one_process(dataset, 
     assert sync[-1]["ddp_samples_per_rank"][0] == sync[-1]["ddp_samples_per_rank"][1] > 0
     assert sync[-1]["ddp_overlap"] == 0
     def single(name: str, accum: int) -> dict:
-        r = subprocess.run([sys.executable, "-m", "madp.cli", "train", "--out", str(tmp_path / name), "--workers", "2",
-                            "--grad-accum", str(accum), *common], capture_output=True, text=True, env=env, timeout=300)
-        assert r.returncode == 0, r.stderr[-2000:]
+        """``madp train`` in this process (one torch thread, as the ranks), its loader workers forked from it."""
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            code, err = cli("train", "--out", tmp_path / name, "--workers", "2", "--grad-accum", accum, *common)
+        finally:
+            torch.set_num_threads(threads)
+        assert code == 0, err[-2000:]
         return load_file(str(tmp_path / name / "checkpoints" / "latest" / "model.safetensors"))
 
     def distance(a: dict, b: dict) -> float:
