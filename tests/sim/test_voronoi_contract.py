@@ -37,3 +37,27 @@ def test_column_prefix_reads_the_map_as_float64(dtype):
     got = ColumnPrefix(m).table
     assert got.dtype == np.float64 and np.array_equal(got, want)
     assert np.array_equal(want, _table(m.astype(np.float64)))
+
+
+def test_robots_on_one_point_share_its_cell_when_every_robot_has_the_same_x():
+    """world_competitors_11 (the cheap duplicate test's ``==`` turned into ``!=``: it then asks whether some
+    neighbouring pair in sorted order differs in *both* coordinates; when every robot stands on one
+    vertical line none does, so a layout with two robots on one point took the no-duplicates path and
+    the duplicate's cell was not shared). Two robots on one point, all four robots at x = 100 m: the
+    masses, costs and centroids are the numpy oracle's (which merges points explicitly), J is the
+    brute-force nearest-robot integral, and the duplicate's mass and cost count once."""
+    from madp.sim.bruteforce import brute_force_sums
+    from madp.sim.voronoi import coverage_cost, voronoi_sums
+    from tests.sim import numpy_oracle
+
+    rng = np.random.default_rng(11)
+    m = rng.random((64, 64))
+    sites = np.array([[10.5, 20.25], [10.5, 20.25], [10.5, 40.75], [10.5, 55.0]])
+    got = voronoi_sums(ColumnPrefix(m), sites)
+    want = numpy_oracle.voronoi_sums(numpy_oracle.NumpyColumnPrefix(m), sites)
+    np.testing.assert_allclose(got.mass, want.mass, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got.cost, want.cost, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(got.centroid_m, want.centroid_m, rtol=1e-12, atol=1e-9)
+    assert got.mass[1] == 0.0 and got.cost[1] == 0.0
+    _, _, bf_cost = brute_force_sums(m, np.unique(sites, axis=0))
+    assert coverage_cost(ColumnPrefix(m), sites) == pytest.approx(bf_cost.sum(), rel=1e-9)
