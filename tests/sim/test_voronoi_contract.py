@@ -61,3 +61,22 @@ def test_robots_on_one_point_share_its_cell_when_every_robot_has_the_same_x():
     assert got.mass[1] == 0.0 and got.cost[1] == 0.0
     _, _, bf_cost = brute_force_sums(m, np.unique(sites, axis=0))
     assert coverage_cost(ColumnPrefix(m), sites) == pytest.approx(bf_cost.sum(), rel=1e-9)
+
+
+def test_cell_sums_leaves_the_cost_out_unless_asked_and_wants_exactly_one_map():
+    """cell_sums_1 (``with_cost`` defaulting to True: every DCVT step would pay for costs it drops) and
+    cell_sums_7 (the message of the one-map check). Without ``with_cost`` the costs are 0; with it they
+    are the world's J terms; giving both maps, or neither, is refused with a message that says so."""
+    from madp.sim.voronoi import cell_sums, world_competitors
+
+    rng = np.random.default_rng(7)
+    prefix = ColumnPrefix(rng.random((64, 64)))
+    sites = rng.uniform(1, 63, size=(6, 2))
+    points, idx, valid, _ = world_competitors(sites)
+    boxes = np.broadcast_to(np.array([0.0, 0.0, 64.0, 64.0]), (6, 4))
+    mass, _, cost = cell_sums(sites, points, idx, valid, boxes, prefix=prefix)
+    assert mass.sum() > 0 and not cost.any()
+    assert cell_sums(sites, points, idx, valid, boxes, prefix=prefix, with_cost=True)[2].min() > 0
+    for kw in ({}, {"prefix": prefix, "block_sums": (np.zeros((1, 1)), np.zeros((1, 1)))}):
+        with pytest.raises(ValueError, match="^give exactly one of prefix and block_sums$"):
+            cell_sums(sites, points, idx, valid, boxes, **kw)
