@@ -7,6 +7,7 @@ directory, so a green CI run always includes the reference comparisons. Use the 
 ``cities_dir`` fixtures (or :func:`require_shared`), never a path of your own.
 """
 
+import contextlib
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as the CLI does: small products, no BLAS threads
@@ -22,6 +23,20 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("MADP_SHARED", REPO.parent / "shared"))
 VECTORS = SHARED / "vectors"
 CITIES = SHARED / "cities"
+
+
+@contextlib.contextmanager
+def one_torch_thread():
+    """Run the block with one torch intra-op thread (as ``--threads 1`` and the commands the tests start
+    run), restoring the previous count after it."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def in_ci() -> bool:

@@ -29,7 +29,7 @@ from madp.eval.runner import EvalConfig, run_suite
 from madp.io.lock import LOCK_FILENAME, pid_running
 from madp.sim import SimParams
 from madp.training import load_policy, resolve, train
-from tests.conftest import tiny_dataset
+from tests.conftest import one_torch_thread, tiny_dataset
 
 SEED = int(os.environ.get("MADP_FAULT_SEED", "15"))
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds worker processes through /proc")
@@ -163,12 +163,8 @@ def train_data(tmp_path_factory):
 @pytest.fixture(scope="module")
 def train_reference(train_data, tmp_path_factory):
     out = tmp_path_factory.mktemp("train-ref") / "r"
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_torch_thread():
         train(resolve("madp", "cpu", data=str(train_data), out=str(out), **TRAIN), progress=False)
-    finally:
-        torch.set_num_threads(threads)
     return out
 
 

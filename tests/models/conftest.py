@@ -4,6 +4,7 @@ import pytest
 import torch
 
 from madp.models import MADP
+from tests.conftest import one_torch_thread
 from .models_testutils import tiny_madp_config
 
 
@@ -11,10 +12,8 @@ from .models_testutils import tiny_madp_config
 def _single_thread():
     """The tiny models gain nothing from intra-op threads, and with the 2 cores shared by other jobs
     OpenMP's thread hand-offs can make small ops 50x slower; one thread keeps the tests fast."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+    with one_torch_thread():
+        yield
 
 
 @pytest.fixture

@@ -7,7 +7,9 @@ Written against the campaign on the numba simulator (2026-12-02): the mutants mu
 import numpy as np
 import pytest
 
-from madp.sim.voronoi import ColumnPrefix
+from madp.sim.bruteforce import brute_force_sums
+from madp.sim.voronoi import ColumnPrefix, cell_sums, coverage_cost, voronoi_sums, world_competitors
+from tests.sim import numpy_oracle
 
 
 def _table(m: np.ndarray) -> np.ndarray:
@@ -46,10 +48,6 @@ def test_robots_on_one_point_share_its_cell_when_every_robot_has_the_same_x():
     the duplicate's cell was not shared). Two robots on one point, all four robots at x = 100 m: the
     masses, costs and centroids are the numpy oracle's (which merges points explicitly), J is the
     brute-force nearest-robot integral, and the duplicate's mass and cost count once."""
-    from madp.sim.bruteforce import brute_force_sums
-    from madp.sim.voronoi import coverage_cost, voronoi_sums
-    from tests.sim import numpy_oracle
-
     rng = np.random.default_rng(11)
     m = rng.random((64, 64))
     sites = np.array([[10.5, 20.25], [10.5, 20.25], [10.5, 40.75], [10.5, 55.0]])
@@ -67,8 +65,6 @@ def test_cell_sums_leaves_the_cost_out_unless_asked_and_wants_exactly_one_map():
     """cell_sums_1 (``with_cost`` defaulting to True: every DCVT step would pay for costs it drops) and
     cell_sums_7 (the message of the one-map check). Without ``with_cost`` the costs are 0; with it they
     are the world's J terms; giving both maps, or neither, is refused with a message that says so."""
-    from madp.sim.voronoi import cell_sums, world_competitors
-
     rng = np.random.default_rng(7)
     prefix = ColumnPrefix(rng.random((64, 64)))
     sites = rng.uniform(1, 63, size=(6, 2))

@@ -17,7 +17,7 @@ from madp.datagen import DatagenConfig, run_datagen
 from madp.sim import SimParams
 from madp.training import ShardStream, StreamPosition, load_policy, resolve, train
 from madp.training.config import learning_rate
-from tests.conftest import tiny_dataset
+from tests.conftest import one_torch_thread, tiny_dataset
 from tests.test_reliability_errors import cli
 
 
@@ -144,12 +144,8 @@ def test_torchrun_two_cpu_processes_stay_in_sync_and_equal_one_process(dataset, 
     assert sync[-1]["ddp_overlap"] == 0
     def single(name: str, accum: int) -> dict:
         """``madp train`` in this process (one torch thread, as the ranks), its loader workers forked from it."""
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
+        with one_torch_thread():
             code, err = cli("train", "--out", tmp_path / name, "--workers", "2", "--grad-accum", accum, *common)
-        finally:
-            torch.set_num_threads(threads)
         assert code == 0, err[-2000:]
         return load_file(str(tmp_path / name / "checkpoints" / "latest" / "model.safetensors"))
 
