@@ -20,6 +20,8 @@ from typing import List, Optional, Tuple
 
 import typer
 
+from madp.controllers import CONTROLLERS, DEFAULT, NAMES
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
 bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks (medians, with a baseline measured in the same run).")
@@ -57,7 +59,7 @@ def _write_json(path: Path, obj: object) -> None:
 @app.command()
 def rollout(
     scenario: Path = typer.Option(..., "--scenario", help="Scenario JSON (features, robots, optional params)."),
-    controller: str = typer.Option("clairvoyant", help="clairvoyant | dcvt | lpac | madp | madp_central"),
+    controller: str = typer.Option("clairvoyant", help=" | ".join(NAMES)),
     checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint of a learned controller (default: the shipped one)."),
     seed: Optional[int] = typer.Option(None, help="MADP's sampling-noise seed (default: the scenario's seed, else 0, as madp eval)."),
     steps: int = typer.Option(600, min=0, help="Control steps to run."),
@@ -65,13 +67,13 @@ def rollout(
     video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
-    from madp.controllers import NAMES, make_controller
+    from madp.controllers import make_controller
     from madp.sim import CoverageEnv, Scenario
     from madp.sim import rollout as run
 
     if controller not in NAMES:
         raise UserError(f"--controller: expected one of {', '.join(NAMES)}, got {controller!r}")
-    if checkpoint is not None and controller in ("clairvoyant", "dcvt"):
+    if checkpoint is not None and not CONTROLLERS[controller].learned:
         raise UserError(f"--checkpoint: the {controller} controller takes no checkpoint")
     if video is not None:
         from madp.video import check_video_path
@@ -277,7 +279,7 @@ def eval_cmd(
     suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
-    controllers: Optional[str] = typer.Option(None, help="Comma-separated subset of clairvoyant,dcvt,lpac,madp,madp_central (default: every one available)."),
+    controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint)."),
     lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
     madp: Optional[Path] = typer.Option(None, help="MADP policy.safetensors (default: the shipped one)."),
     sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (README, Fast sampling)."),
@@ -294,13 +296,13 @@ def eval_cmd(
     ray: Optional[str] = _ray_option(),
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
-    from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
+    from madp.eval.runner import EvalConfig, available_controllers, run_suite
     from madp.eval.suites import SUITES
 
     suites = list(SUITES) if suite == "all" else [suite]
     if suite != "all" and suite not in SUITES:
         raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
-    requested = tuple(c.strip() for c in controllers.split(",")) if controllers else ("clairvoyant", "dcvt", "lpac", "madp")
+    requested = tuple(c.strip() for c in controllers.split(",")) if controllers else DEFAULT
     from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 
     if ddim_steps is not None:

@@ -10,14 +10,17 @@ import json
 import sys
 from pathlib import Path
 
+from madp.controllers import CONTROLLERS
 from madp.eval.report import paper_results  # SPEC §5: the paper's J(600)/J(0)
 
-NAMES = {"clairvoyant": "clairvoyant CVT", "dcvt": "DCVT", "lpac": "LPAC-K3", "madp": "MADP (decentralized)",
-         "madp_central": "MADP (centralized-masked)"}
+
+def name(controller: str) -> str:
+    return CONTROLLERS[controller].description if controller in CONTROLLERS else controller
 
 
 def paper(suite: str, row: str, controller: str) -> str:
-    v = paper_results(suite, row).get("madp" if controller.startswith("madp") else controller)
+    info = CONTROLLERS.get(controller)
+    v = paper_results(suite, row).get(info.paper) if info is not None and info.paper else None
     return "" if v is None else f"{v:.2f}"
 
 
@@ -41,7 +44,7 @@ def main_rows(s: dict, suite: str) -> None:
     """One row per controller of a suite's summary; the paper's number is its suite mean (row "all")."""
     for c in s["controllers"]:
         o = s["overall"][c]
-        print(f"| {suite} | {NAMES.get(c, c)} | {cell(o)} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
+        print(f"| {suite} | {name(c)} | {cell(o)} [{o['ci_lo']:.3f}, {o['ci_hi']:.3f}] | {o['n']} | "
               f"{paper(suite, 'all', c)} | {o['mean_step_ms']:.0f} |")
 
 
@@ -53,7 +56,7 @@ def group_table(root: Path, suite: str) -> None:
     s = json.loads(f.read_text())
     cs = s["controllers"]
     print(f"\n**{suite}** (n per group: {s['by_group'][s['groups'][0]][cs[0]]['n']})\n")
-    print("| group | " + " | ".join(NAMES.get(c, c) for c in cs) + " |")
+    print("| group | " + " | ".join(name(c) for c in cs) + " |")
     print("|---|" + "---|" * len(cs))
     for g in s["groups"]:
         row = []

@@ -23,11 +23,11 @@ The evaluation runner writes two Parquet tables into a suite directory ``runs/ev
   shaded per-step 95 % t band across environments), ``cost_all.png`` when the suite has more than
   ``all_threshold`` groups (default 8), and per suite ``sigma_boxplot.png``, ``cities_heatmap.png``
   or ``scale_improvement_<baseline>.png`` (baseline ``dcvt`` / ``lpac``; MADP is ``madp`` when present,
-  else ``madp_central``).
+  else ``madp_central``: the first controller of kind ``madp``).
 
 Ordering (deterministic, independent of the row order of the tables):
 
-* controllers: ``clairvoyant, dcvt, lpac, madp, madp_central``, then any other name alphabetically;
+* controllers: the registry's order (:data:`madp.controllers.NAMES`), then any other name alphabetically;
 * groups: *natural* sort of the group names (digit runs compare as numbers, text case-insensitively),
   so ``sigma_5-10 < sigma_10-20 < sigma_20-30``, ``N16_F32 < N16_F128 < N32_F16`` and cities are
   alphabetical.
@@ -52,8 +52,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy import stats
 
+from madp.controllers import CONTROLLERS, NAMES
+
 __all__ = [
-    "CONTROLLER_ORDER",
     "PAPER_CONTROLLERS",
     "PAPER_RESULTS",
     "CONFIDENCE",
@@ -69,11 +70,8 @@ __all__ = [
     "write_report",
 ]
 
-#: Canonical controller order of every table and legend; unknown controllers follow alphabetically.
-CONTROLLER_ORDER: tuple[str, ...] = ("clairvoyant", "dcvt", "lpac", "madp", "madp_central")
-
-#: Controllers the paper reports (SPEC §5), in the order of the paper column.
-PAPER_CONTROLLERS: tuple[str, ...] = ("dcvt", "lpac", "madp")
+#: Controllers the paper reports (SPEC §5), in the order of the paper column (the registry's ``paper``).
+PAPER_CONTROLLERS: tuple[str, ...] = tuple(dict.fromkeys(c.paper for c in CONTROLLERS.values() if c.paper))
 
 #: The paper's normalised cost after 600 steps (SPEC §5). ``PAPER_RESULTS[suite]`` maps a row of the
 #: Markdown pivot (a group name, or ``"all"`` for the whole suite) to ``{controller: value}``;
@@ -98,10 +96,6 @@ CONFIDENCE = 0.95
 #: Row label of the whole-suite row of the Markdown tables (and key of ``summary["overall"]``).
 ALL_ROW = "all"
 
-_DISPLAY = {"clairvoyant": "Clairvoyant", "dcvt": "DCVT", "lpac": "LPAC-K3", "madp": "MADP",
-            "madp_central": "MADP (central)"}
-_COLORS = {"clairvoyant": "#444444", "dcvt": "#1f77b4", "lpac": "#ff7f0e", "madp": "#d62728",
-           "madp_central": "#9467bd"}
 _EXTRA_COLORS = ("#2ca02c", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f")
 _META_COLUMNS = ("num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch")
 _DPI = 120
@@ -113,10 +107,11 @@ _DPI = 120
 
 
 def order_controllers(names: Iterable[str]) -> list[str]:
-    """Distinct controller names in canonical order (:data:`CONTROLLER_ORDER`, then alphabetical)."""
+    """Distinct controller names in canonical order (the registry's, :data:`madp.controllers.NAMES`),
+    then any other name alphabetically."""
     uniq = set(names)
-    known = [c for c in CONTROLLER_ORDER if c in uniq]
-    return known + sorted(uniq - set(CONTROLLER_ORDER))
+    known = [c for c in NAMES if c in uniq]
+    return known + sorted(uniq - set(NAMES))
 
 
 def _natural_key(name: str) -> tuple:
@@ -156,12 +151,12 @@ def _unique_slugs(groups: Sequence[str], reserved: Iterable[str] = ()) -> dict[s
 
 
 def _display(controller: str) -> str:
-    return _DISPLAY.get(controller, controller)
+    return CONTROLLERS[controller].display if controller in CONTROLLERS else controller
 
 
 def _color_map(controllers: Sequence[str]) -> dict[str, str]:
     extra = iter(_EXTRA_COLORS * 4)
-    return {c: _COLORS[c] if c in _COLORS else next(extra) for c in controllers}
+    return {c: CONTROLLERS[c].color if c in CONTROLLERS else next(extra) for c in controllers}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -344,7 +339,7 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
         "overall": overall,
     }
     # MADP in the scale matrices: the decentralized policy when it ran, else the centralized-masked one.
-    method = next((c for c in ("madp", "madp_central") if c in controllers), None)
+    method = next((c for c in controllers if c in CONTROLLERS and CONTROLLERS[c].kind == "madp"), None)
     if suite == "scale" and method is not None and \
             _has_column(table, "num_robots") and _has_column(table, "num_features"):
         imp = {}

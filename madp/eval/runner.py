@@ -34,16 +34,14 @@ from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
 from madp.io.ray_backend import ray_imap_unordered
 from madp.io.workers import die_with_parent
+from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, make_controller
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
-from madp.controllers import CLASSICAL, LEARNED
 from madp.sim import CoverageEnv
 
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"fixed_noise": False, "video": 0}
-
-ORDER = CLASSICAL + LEARNED
 
 
 @dataclass(frozen=True)
@@ -52,7 +50,7 @@ class EvalConfig:
     out: str = "runs/eval"
     num_envs: int = 50
     steps: int = 600
-    controllers: tuple[str, ...] = ORDER
+    controllers: tuple[str, ...] = NAMES
     lpac: str | None = None  # checkpoint paths (None: the shipped ones, if any)
     madp: str | None = None
     sampler: str = DEFAULT_SAMPLER
@@ -67,21 +65,22 @@ class EvalConfig:
     record_every: int = 5
     record_samples: int = 4
 
+    @property
+    def sampling(self):
+        """MADP's :class:`madp.policies.SamplingSettings` of this evaluation."""
+        from madp.policies import SamplingSettings
 
-def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
-    """Controller ``name`` as this suite runs it (:func:`madp.controllers.make_controller`), MADP's
-    noise seeded by the environment's seed."""
-    from madp.controllers import make_controller as build
+        return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise)
 
-    return build(name, cfg.lpac if name == "lpac" else cfg.madp, seed=spec.seed, sampler=cfg.sampler,
-                 sampling_steps=cfg.sampling_steps, eta=cfg.eta, fixed_noise=cfg.fixed_noise)
+    def checkpoint(self, controller: str) -> str | None:
+        """The checkpoint this evaluation gives ``controller`` (``lpac`` / ``madp``; None: classical or the shipped one)."""
+        info = CONTROLLERS[controller]
+        return getattr(self, info.kind) if info.learned else None
 
-
-def sampling_settings(cfg: EvalConfig, controller: str) -> dict:
-    """The sampler settings a controller used (MADP), for tables and recordings; {} for the others."""
-    if not controller.startswith("madp"):
-        return {}
-    return {"sampler": cfg.sampler, "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise}
+    def controller(self, name: str, spec: EnvSpec):
+        """Controller ``name`` as this suite runs it (:func:`madp.controllers.make_controller`), MADP's
+        noise seeded by the environment's seed."""
+        return make_controller(name, self.checkpoint(name), seed=spec.seed, sampling=self.sampling)
 
 
 def video_envs(envs: list[EnvSpec], k: int) -> list[EnvSpec]:
@@ -104,7 +103,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     job_file = suite_dir / "jobs" / f"{spec.key}-{controller}.npz"
     scenario = spec.scenario()
     env = CoverageEnv(scenario)
-    ctrl = make_controller(controller, cfg, spec)
+    ctrl = cfg.controller(controller, spec)
     t_steps = cfg.steps
     costs = np.empty(t_steps + 1)
     costs[0] = 1.0
@@ -112,7 +111,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     positions = np.empty((t_steps + 1, env.num_robots, 2)) if record or video else None
     actions = np.empty((t_steps, env.num_robots, 2)) if record else None
     samples = None
-    if record and controller.startswith("madp"):
+    if record and CONTROLLERS[controller].samples:
         samples = np.full((t_steps, env.num_robots, cfg.record_samples, 2), np.nan)
         import torch
 
@@ -138,7 +137,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
         write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map, positions, actions,
                            controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
-                           extra_metadata=sampling_settings(cfg, controller))
+                           extra_metadata=CONTROLLERS[controller].settings(cfg.sampling))
     if video:
         from madp.video import write_rollout_video
 
@@ -167,7 +166,7 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
     envs = [CoverageEnv(s.scenario()) for s in specs]
     if len({e.num_robots for e in envs}) != 1:
         raise ValueError("run_batch: environments of one batch must have the same number of robots")
-    ctrl = make_controller(controller, cfg, specs[0])
+    ctrl = cfg.controller(controller, specs[0])
     generators = [noise_generator(s.seed) for s in specs]
     b, t_steps = len(envs), cfg.steps
     costs = np.empty((b, t_steps + 1))
@@ -248,13 +247,13 @@ def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit:
     """Resolve checkpoints; drop learned controllers without one unless they were asked for."""
     from madp.policies import load, shipped_checkpoint
 
-    unknown = [c for c in requested if c not in ORDER]
+    unknown = [c for c in requested if c not in NAMES]
     if unknown:
-        raise ValueError(f"--controllers: unknown {unknown}; expected some of {list(ORDER)}")
-    paths = {"lpac": cfg.lpac, "madp": cfg.madp}
+        raise ValueError(f"--controllers: unknown {unknown}; expected some of {list(NAMES)}")
+    paths = {k: getattr(cfg, k) for k in CHECKPOINT_KINDS}  # EvalConfig has a field per checkpoint kind
     keep = []
     for c in requested:
-        kind = "madp" if c.startswith("madp") else c
+        kind = CONTROLLERS[c].kind
         if kind in paths:
             path = paths[kind] or (str(shipped_checkpoint(kind)) if shipped_checkpoint(kind) else None)
             if path is None:
@@ -264,7 +263,7 @@ def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit:
             load(path, kind)  # a missing or incompatible checkpoint is a one-line error now
             paths[kind] = path
         keep.append(c)
-    return EvalConfig(**{**cfg.__dict__, "lpac": paths["lpac"], "madp": paths["madp"], "controllers": tuple(keep)}), tuple(keep)
+    return EvalConfig(**{**cfg.__dict__, **paths, "controllers": tuple(keep)}), tuple(keep)
 
 
 def owned_files(suite_dir: Path) -> list[str]:
@@ -310,7 +309,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                 "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs]}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
-                   for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
+                   for k in CHECKPOINT_KINDS if getattr(cfg, k) and any(CONTROLLERS[c].kind == k for c in cfg.controllers)}
     cfg_file = suite_dir / "config.json"
     try:
         old = _read_config(cfg_file)
@@ -332,7 +331,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
             if changed:
                 clear_owned(suite_dir, owned_files(suite_dir))
             else:
-                stale = [c for c in LEARNED if any(c.startswith(k) for k in retrained)]
+                stale = [c for c in LEARNED if CONTROLLERS[c].kind in retrained]
                 for c in stale:
                     for f in [*suite_dir.glob(f"jobs/*-{c}.npz"), *suite_dir.glob(f"rollouts/*-{c}.mcap"),
                               *suite_dir.glob(f"videos/*-{c}.mp4")]:
@@ -382,7 +381,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
                                "sampler", "sampling_steps", "fixed_noise")}
-    sampling = {c: sampling_settings(cfg, c) for c in cfg.controllers}
+    sampling = {c: CONTROLLERS[c].settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
             d = np.load(suite_dir / "jobs" / f"{e.key}-{c}.npz")

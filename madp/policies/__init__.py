@@ -12,6 +12,7 @@ in ``madp/checkpoints/``.
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
 
@@ -61,8 +62,6 @@ def _clip_speed(u: np.ndarray, u_max: float) -> np.ndarray:
 
 
 class LPACPolicy:
-    name = "lpac"
-
     def __init__(self, model, device: str = "cpu"):
         self.model, self.device = model.eval(), torch.device(device)
 
@@ -78,32 +77,44 @@ class LPACPolicy:
         return np.stack([_clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])
 
 
+@dataclass(frozen=True)
+class SamplingSettings:
+    """How MADP samples its actions: the reverse diffusion (``sampler``, ``sampling_steps`` S, DDIM's
+    ``eta``; see :mod:`madp.models.samplers`) and whether each robot's initial noise is drawn once
+    per episode (``fixed_noise``). Checked on construction; the defaults are the measured best."""
+
+    sampler: str = DEFAULT_SAMPLER
+    sampling_steps: int = DEFAULT_SAMPLING_STEPS
+    eta: float = 0.0
+    fixed_noise: bool = False
+
+    def __post_init__(self) -> None:
+        check_sampler(self.sampler, self.sampling_steps, self.eta)
+
+    def as_dict(self) -> dict:
+        """What names the sampling in tables, recordings and a suite's config."""
+        return asdict(self)
+
+
 class MADPPolicy:
     """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`);
-    ``sampler`` / ``num_steps`` / ``eta`` choose the reverse diffusion (see :mod:`madp.models.samplers`).
+    ``sampling`` chooses the reverse diffusion (:class:`SamplingSettings`).
 
-    ``fixed_noise``: each robot draws its initial noise ``U_K`` once per episode and reuses it at
-    every control step (with a deterministic sampler the policy is then a function of the state),
+    ``sampling.fixed_noise``: each robot draws its initial noise ``U_K`` once per episode and reuses it
+    at every control step (with a deterministic sampler the policy is then a function of the state),
     instead of a fresh draw per step; per-step noise of DDIM with η > 0 stays fresh."""
 
-    def __init__(self, model, mode: str = "decentralized", num_steps: int = DEFAULT_SAMPLING_STEPS, eta: float = 0.0,
-                 seed: int = 0, device: str = "cpu", sampler: str = DEFAULT_SAMPLER, fixed_noise: bool = False):
+    def __init__(self, model, mode: str = "decentralized", sampling: SamplingSettings | None = None, seed: int = 0,
+                 device: str = "cpu"):
         if mode not in ("decentralized", "centralized"):
             raise ValueError(f"--madp-mode: expected decentralized or centralized, got {mode!r}")
-        check_sampler(sampler, num_steps, eta)
-        self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(num_steps), float(eta)
-        self.sampler, self.fixed_noise = sampler, bool(fixed_noise)
+        self.sampling = sampling = sampling or SamplingSettings()
+        self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
+        self.sampler, self.fixed_noise = sampling.sampler, bool(sampling.fixed_noise)
         self._fixed: dict[int, torch.Tensor] = {}
-        self.stochastic = sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
+        self.stochastic = self.sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
         self.device = torch.device(device)
-        self.name = "madp" if mode == "decentralized" else "madp_central"
         self.reset(seed)
-
-    @property
-    def settings(self) -> dict:
-        """What names the sampling in tables and recordings."""
-        return {"sampler": self.sampler, "sampling_steps": self.num_steps, "eta": self.eta,
-                "fixed_noise": self.fixed_noise}
 
     def reset(self, seed: int) -> None:
         self.generator = noise_generator(seed, self.device)

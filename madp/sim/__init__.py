@@ -7,13 +7,13 @@ from .env import CoverageEnv
 from .idf import importance_map, random_features
 from .observations import CHANNELS, observation_tensor, resize_matrix
 from .params import SimParams
-from .rollout import CONTROLLERS, Rollout, make_controller, rollout, rollout_scenario
+from .rollout import Rollout, rollout
 from .scenario import Scenario, ScenarioError
 from .voronoi import CellSums, ColumnPrefix, coverage_cost, voronoi_sums
 
 __all__ = [
-    "CHANNELS", "CONTROLLERS", "CellSums", "ClairvoyantCVT", "ColumnPrefix", "Controller", "CoverageEnv",
+    "CHANNELS", "CellSums", "ClairvoyantCVT", "ColumnPrefix", "Controller", "CoverageEnv",
     "DecentralizedCVT", "Rollout", "Scenario", "ScenarioError", "SimParams", "coverage_cost",
-    "importance_map", "lloyd_velocity", "make_controller", "observation_tensor", "random_features",
-    "resize_matrix", "rollout", "rollout_scenario", "voronoi_sums",
+    "importance_map", "lloyd_velocity", "observation_tensor", "random_features",
+    "resize_matrix", "rollout", "voronoi_sums",
 ]

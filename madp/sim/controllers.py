@@ -19,7 +19,7 @@ GOAL_EPS_M = 1e-10
 
 
 class Controller(Protocol):
-    name: str
+    """Anything that acts: ``controller(env) -> actions [N, 2]`` m/s (their names: :mod:`madp.controllers`)."""
 
     def __call__(self, env: CoverageEnv) -> np.ndarray: ...
 
@@ -39,8 +39,6 @@ def lloyd_velocity(env: CoverageEnv, goals_m: np.ndarray) -> np.ndarray:
 class ClairvoyantCVT:
     """Lloyd's algorithm with all robots on the full world map (the expert that makes datasets)."""
 
-    name = "clairvoyant"
-
     def __init__(self) -> None:
         self.goals_m: np.ndarray | None = None
         self.masses: np.ndarray | None = None
@@ -59,8 +57,6 @@ class ClairvoyantCVT:
 class DecentralizedCVT:
     """Each robot's own Lloyd step: its Voronoi cell among itself and its neighbours within r_c,
     restricted to its local window (trimmed at the world border), weighted by its own sensed map."""
-
-    name = "dcvt"
 
     def __init__(self) -> None:
         self.goals_m: np.ndarray | None = None

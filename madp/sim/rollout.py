@@ -6,11 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .controllers import ClairvoyantCVT, Controller, DecentralizedCVT
+from .controllers import Controller
 from .env import CoverageEnv
-from .scenario import Scenario
-
-CONTROLLERS = {"clairvoyant": ClairvoyantCVT, "dcvt": DecentralizedCVT}
 
 
 @dataclass
@@ -32,13 +29,6 @@ class Rollout:
         }
 
 
-def make_controller(name: str) -> Controller:
-    try:
-        return CONTROLLERS[name]()
-    except KeyError:
-        raise ValueError(f"unknown controller {name!r}; expected one of {sorted(CONTROLLERS)}") from None
-
-
 def rollout(env: CoverageEnv, controller: Controller, steps: int) -> Rollout:
     """Reset ``env`` and run ``controller`` for ``steps`` steps."""
     env.reset()
@@ -54,7 +44,3 @@ def rollout(env: CoverageEnv, controller: Controller, steps: int) -> Rollout:
         costs[t] = env.normalized_cost()
         positions[t] = env.positions_m
     return Rollout(costs, positions, converged_at)
-
-
-def rollout_scenario(scenario: Scenario, controller: str, steps: int) -> Rollout:
-    return rollout(CoverageEnv(scenario), make_controller(controller), steps)

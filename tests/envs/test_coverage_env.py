@@ -119,9 +119,7 @@ def test_gymnasium_checker():
 @pytest.mark.parametrize("name", ["dcvt", "madp"])
 def test_env_driven_by_a_controller_matches_madp_eval(name):
     """The PettingZoo env driven by a controller gives the J(t)/J(0) of madp eval's own loop, bit for bit."""
-    from madp.controllers import make_controller
     from madp.eval.runner import EvalConfig
-    from madp.eval.runner import make_controller as eval_controller
     from madp.eval.suites import EnvSpec
     from madp.policies import shipped_checkpoint
     from madp.sim import rollout
@@ -130,7 +128,7 @@ def test_env_driven_by_a_controller_matches_madp_eval(name):
         pytest.skip("no shipped MADP checkpoint in this install")
     spec, steps = EnvSpec("uniform", "uniform", 0, SMALL), 3
     reference = rollout(CoverageEnv(spec.scenario()),
-                        eval_controller(name, EvalConfig(suite="uniform", madp=str(shipped_checkpoint("madp"))), spec), steps)
+                        EvalConfig(suite="uniform", madp=str(shipped_checkpoint("madp"))).controller(name, spec), steps)
     np.testing.assert_array_equal(env_costs(name, spec, steps), reference.normalized_cost)
 
 

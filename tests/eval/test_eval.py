@@ -161,13 +161,13 @@ def test_plan_batches_learned_controllers_of_equal_swarm_size(tmp_path):
 def test_fixed_noise_makes_the_policy_a_function_of_the_state(checkpoints):
     """--fixed-noise: the same state gives the same action at every step of an episode (a fresh
     draw per step would not); a new episode (reset) draws new noise."""
-    from madp.policies import MADPPolicy, load
+    from madp.policies import MADPPolicy, SamplingSettings, load
     from madp.sim import CoverageEnv
 
     model, _ = load(checkpoints / "madp.safetensors", "madp")
     env = CoverageEnv(suite_envs("uniform", 1)[0].scenario())
-    fixed = MADPPolicy(model, "decentralized", 3, seed=7, sampler="dpm++", fixed_noise=True)
-    fresh = MADPPolicy(model, "decentralized", 3, seed=7, sampler="dpm++")
+    fixed = MADPPolicy(model, "decentralized", SamplingSettings("dpm++", 3, fixed_noise=True), seed=7)
+    fresh = MADPPolicy(model, "decentralized", SamplingSettings("dpm++", 3), seed=7)
     a, b = fixed(env), fixed(env)
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(fresh(env), a)  # the same first draw from the same seed ...

@@ -1,5 +1,5 @@
-"""``madp.sim.rollout``: what ``madp rollout`` runs for the classical controllers (issue 17: mutmut found
-no test of ``rollout_scenario``, ``make_controller`` or ``Rollout.to_json`` in the unit suites)."""
+"""``madp.sim.rollout``: what ``madp rollout`` runs (issue 17: mutmut found no test of the rollout record
+or ``Rollout.to_json`` in the unit suites)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from madp.sim import ClairvoyantCVT, CoverageEnv, DecentralizedCVT, Scenario, SimParams
-from madp.sim.rollout import make_controller, rollout, rollout_scenario
+from madp.sim.rollout import rollout
 
 PARAMS = SimParams(world_size=256, num_robots=3, num_features=2)
 
@@ -18,10 +18,10 @@ def _scenario() -> Scenario:
 
 
 @pytest.mark.parametrize("name, cls", [("clairvoyant", ClairvoyantCVT), ("dcvt", DecentralizedCVT)])
-def test_rollout_scenario_is_the_step_loop(name, cls):
+def test_rollout_is_the_step_loop(name, cls):
     """The record equals a hand-written loop over ``CoverageEnv.step``: J(t)/J(0) from 1, the positions
     at t = 0..T, and ``to_json``'s fields."""
-    r = rollout_scenario(_scenario(), name, 5)
+    r = rollout(CoverageEnv(_scenario()), cls(), 5)
     env, ctrl = CoverageEnv(_scenario()), cls()
     costs, positions = [1.0], [env.positions_m.copy()]
     for _ in range(5):
@@ -53,9 +53,3 @@ def test_converged_at_is_the_first_all_zero_step_and_rollout_resets():
     np.testing.assert_array_equal(r.positions_m[0], _scenario().robots_m)
     assert r.converged_at == 3
     assert rollout(env, StopAfter(10), 4).converged_at is None
-
-
-def test_unknown_controller_names_the_choices():
-    with pytest.raises(ValueError, match=r"^unknown controller 'lpac'; expected one of \['clairvoyant', 'dcvt'\]$"):
-        make_controller("lpac")
-    assert isinstance(make_controller("dcvt"), DecentralizedCVT)

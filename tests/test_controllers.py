@@ -1,0 +1,38 @@
+"""The controller registry (``madp.controllers``): one list of names, and everything else derived from it."""
+
+from __future__ import annotations
+
+import pytest
+
+from madp.controllers import CLASSICAL, CONTROLLERS, DEFAULT, LEARNED, NAMES, checkpoint_kind, make_controller
+from madp.sim import ClairvoyantCVT, DecentralizedCVT
+
+
+def test_the_registry_is_the_one_list_of_names():
+    from madp.eval.report import PAPER_CONTROLLERS, order_controllers
+    from madp.eval.runner import EvalConfig
+
+    assert NAMES == ("clairvoyant", "dcvt", "lpac", "madp", "madp_central")
+    assert CLASSICAL == ("clairvoyant", "dcvt") and LEARNED == ("lpac", "madp", "madp_central")
+    assert DEFAULT == ("clairvoyant", "dcvt", "lpac", "madp")  # madp eval without --controllers
+    assert EvalConfig(suite="uniform").controllers == NAMES
+    assert order_controllers(["zeta", *reversed(NAMES)]) == [*NAMES, "zeta"]
+    assert PAPER_CONTROLLERS == ("dcvt", "lpac", "madp")
+    assert [checkpoint_kind(n) for n in NAMES] == [None, None, "lpac", "madp", "madp"]
+    assert len({c.color for c in CONTROLLERS.values()}) == len(NAMES)  # a plot tells them apart
+
+
+def test_settings_are_the_sampler_settings_of_a_controller_that_samples():
+    from madp.policies import SamplingSettings
+
+    s = SamplingSettings("ddim", 7, 0.5, True)
+    assert CONTROLLERS["madp_central"].settings(s) == {"sampler": "ddim", "sampling_steps": 7, "eta": 0.5,
+                                                       "fixed_noise": True}
+    assert CONTROLLERS["lpac"].settings(s) == {} and CONTROLLERS["dcvt"].settings(s) == {}
+
+
+def test_make_controller_builds_each_kind():
+    assert isinstance(make_controller("clairvoyant"), ClairvoyantCVT)
+    assert isinstance(make_controller("dcvt"), DecentralizedCVT)
+    with pytest.raises(ValueError, match=r"^--controller: expected one of clairvoyant, dcvt, lpac, madp, madp_central, got 'lqr'$"):
+        make_controller("lqr")
