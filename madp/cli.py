@@ -85,15 +85,17 @@ def rollout(
     sc = Scenario.load(scenario)
     noise_seed = seed if seed is not None else (sc.seed if sc.seed is not None else 0)
     ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed)
-    env = CoverageEnv(sc)
-    result = run(env, ctrl, steps)
+    frames = []
+    if video is not None:
+        from madp.video import Frames
+
+        frames = [Frames(video, steps)]
+    result = run(CoverageEnv(sc), ctrl, steps, frames)
     _write_json(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
                f" (converged at {result.converged_at}) -> {out}")
-    if video is not None:
-        from madp.video import write_rollout_video
-
-        v = write_rollout_video(video, env.world_map, result.positions_m, result.normalized_cost, progress=True)
+    if frames:
+        v = frames[0].write(progress=True)
         typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from madp.io.atomic import atomic_path, temp_path
 from madp.render import FrameRenderer
+from madp.sim.rollout import Hook
 
 VIDEO_FPS = 30
 VIDEO_SIZE = 512
@@ -113,3 +114,26 @@ def write_rollout_video(path: str | os.PathLike, world_map: np.ndarray, position
     """One rollout (positions ``[T+1, N, 2]``, J(t)/J(0) ``[T+1]``) as an MP4 of T+1 frames."""
     return write_video(path, rollout_frames(world_map, positions_m, costs, size), fps, total=len(costs),
                        progress=progress)
+
+
+class Frames(Hook):
+    """The rollout hook (:mod:`madp.sim.rollout`) that films environment ``index`` of a rollout of
+    ``steps`` steps: it keeps the positions and J(t)/J(0) of every step, and :meth:`write` writes
+    the T+1 frames to ``path``."""
+
+    def __init__(self, path: str | os.PathLike, steps: int, index: int = 0):
+        self.path, self.steps, self.index = path, steps, index
+
+    def start(self, envs):
+        env = envs[self.index]
+        self.world_map = env.world_map
+        self.positions_m = np.empty((self.steps + 1, env.num_robots, 2))
+        self.cost = np.empty(self.steps + 1)
+        self.positions_m[0], self.cost[0] = env.positions_m, 1.0
+
+    def stepped(self, t, envs):
+        env = envs[self.index]
+        self.positions_m[t], self.cost[t] = env.positions_m, env.normalized_cost()
+
+    def write(self, size: int = VIDEO_SIZE, fps: float = VIDEO_FPS, progress: bool = False) -> dict:
+        return write_rollout_video(self.path, self.world_map, self.positions_m, self.cost, size, fps, progress)

@@ -8,6 +8,7 @@ import numpy as np
 
 from madp.data_schema import Episode
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
+from madp.sim.rollout import Hook, act_alone, run
 
 from .plan import DatagenConfig, ShardTask, episode_id, scenario_seed
 
@@ -50,6 +51,30 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
     return drive
 
 
+class EpisodeRecorder(Hook):
+    """The rollout hook (:mod:`madp.sim.rollout`) of :func:`record_episode`: records a sample at every
+    ``record_every``-th step and at the last one, and ends the rollout there (see :func:`record_episode`)."""
+
+    def __init__(self, expert: ClairvoyantCVT, cfg: DatagenConfig, max_samples: int, stops_when_converged: bool,
+                 on_sample: Callable[[], None] | None = None):
+        self.expert, self.cfg, self.max_samples, self.on_sample = expert, cfg, max_samples, on_sample
+        self.stops_when_converged = stops_when_converged
+        self.acts, self.pos, self.obs, self.goals, self.steps = [], [], [], [], []
+
+    def actions(self, t, envs, actions, act_s):
+        env, u = envs[0], actions[0]
+        last = (self.stops_when_converged and not u.any()) or t >= self.cfg.max_steps
+        if t % self.cfg.record_every == 0 or last:
+            self.acts.append(u.astype(np.float32))
+            self.pos.append(env.positions_m.astype(np.float32))
+            self.obs.append(env.observations().astype(np.float16))
+            self.goals.append(self.expert.goals_m.astype(np.float32))
+            self.steps.append(t)
+            if self.on_sample is not None:
+                self.on_sample()
+        return last or len(self.steps) >= self.max_samples
+
+
 def record_episode(
     scenario: Scenario,
     cfg: DatagenConfig,
@@ -69,32 +94,18 @@ def record_episode(
     env = CoverageEnv(scenario)
     expert = ClairvoyantCVT()
     driver = learner_driver(cfg.policy, scenario.seed) if cfg.policy else None
-    acts, pos, obs, goals, steps = [], [], [], [], []
-    t = 0
-    while len(steps) < max_samples:
-        u = expert(env)
-        last = (driver is None and not u.any()) or t >= cfg.max_steps
-        if t % cfg.record_every == 0 or last:
-            acts.append(u.astype(np.float32))
-            pos.append(env.positions_m.astype(np.float32))
-            obs.append(env.observations().astype(np.float16))
-            goals.append(expert.goals_m.astype(np.float32))
-            steps.append(t)
-            if on_sample is not None:
-                on_sample()
-        if last:
-            break
-        env.step(u if driver is None else driver(env, u))
-        t += 1
+    recorder = EpisodeRecorder(expert, cfg, max_samples, driver is None, on_sample)
+    drive = None if driver is None else (lambda envs, u: [driver(envs[0], u[0])])
+    run([env], act_alone(expert), [recorder], drive=drive)
     return Episode(
         episode_id=ep_id,
         scenario_seed=int(scenario.seed),
-        actions=np.stack(acts),
-        positions=np.stack(pos),
-        observations=np.stack(obs),
-        steps=np.asarray(steps, dtype=np.int64),
+        actions=np.stack(recorder.acts),
+        positions=np.stack(recorder.pos),
+        observations=np.stack(recorder.obs),
+        steps=np.asarray(recorder.steps, dtype=np.int64),
         world_map=env.world_map_f32,
-        goals=np.stack(goals),
+        goals=np.stack(recorder.goals),
     )
 
 

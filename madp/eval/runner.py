@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from madp.io.workers import die_with_parent
 from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, make_controller
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
 from madp.sim import CoverageEnv
+from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, act_alone, run
 
 from .suites import EnvSpec, suite_envs
 
@@ -100,49 +100,41 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
             video: bool = False) -> dict:
     """Roll one controller out on one environment; write its job file (and an MCAP if ``record``, an
     MP4 if ``video``)."""
-    job_file = suite_dir / "jobs" / f"{spec.key}-{controller}.npz"
     scenario = spec.scenario()
     env = CoverageEnv(scenario)
     ctrl = cfg.controller(controller, spec)
-    t_steps = cfg.steps
-    costs = np.empty(t_steps + 1)
-    costs[0] = 1.0
-    step_s = np.empty(t_steps)
-    positions = np.empty((t_steps + 1, env.num_robots, 2)) if record or video else None
-    actions = np.empty((t_steps, env.num_robots, 2)) if record else None
-    samples = None
-    if record and CONTROLLERS[controller].samples:
-        samples = np.full((t_steps, env.num_robots, cfg.record_samples, 2), np.nan)
-        import torch
+    info, steps = CONTROLLERS[controller], cfg.steps
+    costs, timing = Costs(steps), Timing(steps)
+    hooks: list[Hook] = [costs, timing]
+    if record:
+        positions, actions = Positions(steps), Actions(steps)
+        hooks += [positions, actions]
+        if info.samples:
+            import torch
 
-        viz_generator = torch.Generator().manual_seed(spec.seed ^ 0x5A5A)  # leaves the rollout's noise alone
-    if positions is not None:
-        positions[0] = env.positions_m
-    for t in range(t_steps):
-        t0 = time.perf_counter()
-        u = ctrl(env)
-        step_s[t] = time.perf_counter() - t0
-        if samples is not None and t % cfg.record_every == 0:
-            samples[t] = ctrl.sample(env, cfg.record_samples, viz_generator).transpose(1, 0, 2)
-        if actions is not None:
-            actions[t] = u
-        env.step(u)
-        costs[t + 1] = env.normalized_cost()
-        if positions is not None:
-            positions[t + 1] = env.positions_m
+            viz_generator = torch.Generator().manual_seed(spec.seed ^ 0x5A5A)  # leaves the rollout's noise alone
+            samples = Samples(steps, cfg.record_samples, cfg.record_every,
+                              lambda e: ctrl.sample(e, cfg.record_samples, viz_generator))
+            hooks.append(samples)
+    if video:
+        from madp.video import Frames
+
+        frames = Frames(video_path(suite_dir, spec, controller), steps)
+        hooks.append(frames)
+    run([env], act_alone(ctrl), hooks, steps)
     if record:
         from .record import write_rollout_mcap
 
         (suite_dir / "rollouts").mkdir(parents=True, exist_ok=True)
-        write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map, positions, actions,
-                           controller, env.params.dt_s, samples_mps=samples, every=cfg.record_every,
+        write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map,
+                           positions.positions_m[0], actions.actions_mps[0], controller, env.params.dt_s,
+                           samples_mps=samples.samples_mps if info.samples else None, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
-                           extra_metadata=CONTROLLERS[controller].settings(cfg.sampling))
+                           extra_metadata=info.settings(cfg.sampling))
     if video:
-        from madp.video import write_rollout_video
-
-        write_rollout_video(video_path(suite_dir, spec, controller), env.world_map, positions, costs)
-    _save_job(job_file, costs, step_s, env.num_robots, len(scenario.features))
+        frames.write()
+    _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs.cost[0], timing.step_s, env.num_robots,
+              len(scenario.features))
     return {"key": spec.key, "controller": controller}
 
 
@@ -168,30 +160,19 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
         raise ValueError("run_batch: environments of one batch must have the same number of robots")
     ctrl = cfg.controller(controller, specs[0])
     generators = [noise_generator(s.seed) for s in specs]
-    b, t_steps = len(envs), cfg.steps
-    costs = np.empty((b, t_steps + 1))
-    costs[:, 0] = 1.0
-    step_s = np.empty(t_steps)
-    filmed = [i for i, s in enumerate(specs) if s.key in video]
-    positions = np.empty((len(filmed), t_steps + 1, envs[0].num_robots, 2))
-    for j, i in enumerate(filmed):
-        positions[j, 0] = envs[i].positions_m
-    for t in range(t_steps):
-        t0 = time.perf_counter()
-        u = ctrl.act_batch(envs, generators)
-        step_s[t] = (time.perf_counter() - t0) / b
-        for i, env in enumerate(envs):
-            env.step(u[i])
-            costs[i, t + 1] = env.normalized_cost()
-        for j, i in enumerate(filmed):
-            positions[j, t + 1] = envs[i].positions_m
-    if filmed:
-        from madp.video import write_rollout_video
+    costs, timing = Costs(cfg.steps), Timing(cfg.steps)
+    hooks: list[Hook] = [costs, timing]
+    if any(s.key in video for s in specs):
+        from madp.video import Frames
 
-        for j, i in enumerate(filmed):
-            write_rollout_video(video_path(suite_dir, specs[i], controller), envs[i].world_map, positions[j], costs[i])
+        filmed = [Frames(video_path(suite_dir, s, controller), cfg.steps, index=i) for i, s in enumerate(specs)
+                  if s.key in video]
+        hooks += filmed
+    run(envs, lambda es: ctrl.act_batch(es, generators), hooks, cfg.steps)
+    for f in hooks[2:]:
+        f.write()
     for i, (spec, env) in enumerate(zip(specs, envs)):
-        _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs[i], step_s, env.num_robots,
+        _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs.cost[i], timing.step_s, env.num_robots,
                   len(env.scenario.features))
     return [{"key": s.key, "controller": controller} for s in specs]
 

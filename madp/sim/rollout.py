@@ -1,13 +1,153 @@
-"""Run a controller on a scenario and record J(t)/J(0) and positions."""
+"""The one rollout loop: controllers act on environments, hooks record what their caller wants.
+
+:func:`run` steps B environments in lockstep (B = 1 for a lone rollout). At every control step t it
+asks ``act(envs) -> actions [B, N, 2]`` (m/s) for the state at t, shows them to the hooks, and steps
+each environment with them (or with ``drive(envs, actions)``, what relabelling datagen executes
+instead). Hooks see the state at t = 0 (:meth:`Hook.start`), the actions at every step with the wall
+time ``act`` took (:meth:`Hook.actions`; a hook may end the rollout there, before those actions are
+executed) and the state after every step (:meth:`Hook.stepped`). ``madp rollout`` (:func:`rollout`),
+``madp eval`` (one environment or a batch) and ``madp datagen`` (expert and learner) all run this loop
+with their own hooks; the hooks here record cost curves, positions, actions, samples and timing
+(frames for videos: :class:`madp.video.Frames`).
+"""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 
 from .controllers import Controller
 from .env import CoverageEnv
+
+#: ``act(envs) -> actions [B, N, 2]`` m/s for the current state of each environment.
+Act = Callable[[list[CoverageEnv]], np.ndarray]
+
+
+class Hook:
+    """What a caller records of a rollout. Every method is optional; the defaults do nothing."""
+
+    def start(self, envs: list[CoverageEnv]) -> None:
+        """The state at t = 0."""
+
+    def actions(self, t: int, envs: list[CoverageEnv], actions: np.ndarray, act_s: float) -> bool | None:
+        """The actions ``[B, N, 2]`` for the state at step t, computed in ``act_s`` seconds. Return True
+        to end the rollout here, before they are executed."""
+
+    def stepped(self, t: int, envs: list[CoverageEnv]) -> None:
+        """The state at step t (t >= 1), after the environments stepped."""
+
+
+def act_alone(controller: Controller) -> Act:
+    """``act`` of one controller on one environment."""
+    return lambda envs: controller(envs[0])[None]
+
+
+def run(envs: list[CoverageEnv], act: Act, hooks: Sequence[Hook] = (), steps: int | None = None,
+        drive: Callable[[list[CoverageEnv], np.ndarray], np.ndarray] | None = None) -> int:
+    """Step ``envs`` from their current state with ``act`` for ``steps`` control steps (None: until a
+    hook ends the rollout). ``drive``: what the environments execute instead of the actions (default:
+    the actions). Returns the number of steps taken."""
+    for h in hooks:
+        h.start(envs)
+    t = 0
+    while steps is None or t < steps:
+        t0 = time.perf_counter()
+        u = act(envs)
+        act_s = time.perf_counter() - t0
+        if any([h.actions(t, envs, u, act_s) for h in hooks]):  # every hook sees the step
+            break
+        executed = u if drive is None else drive(envs, u)
+        for env, x in zip(envs, executed):
+            env.step(x)
+        t += 1
+        for h in hooks:
+            h.stepped(t, envs)
+    return t
+
+
+class Costs(Hook):
+    """``cost [B, steps + 1]``: J(t)/J(0) of each environment (1 at t = 0)."""
+
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def start(self, envs):
+        self.cost = np.empty((len(envs), self.steps + 1))
+        self.cost[:, 0] = 1.0
+
+    def stepped(self, t, envs):
+        for i, env in enumerate(envs):
+            self.cost[i, t] = env.normalized_cost()
+
+
+class Positions(Hook):
+    """``positions_m [len(which), steps + 1, N, 2]`` of the environments ``which`` (default: all)."""
+
+    def __init__(self, steps: int, which: Sequence[int] | None = None):
+        self.steps, self.which = steps, which
+
+    def start(self, envs):
+        self.which = list(range(len(envs))) if self.which is None else list(self.which)
+        self.positions_m = np.empty((len(self.which), self.steps + 1, envs[0].num_robots, 2))
+        self.stepped(0, envs)
+
+    def stepped(self, t, envs):
+        for j, i in enumerate(self.which):
+            self.positions_m[j, t] = envs[i].positions_m
+
+
+class Actions(Hook):
+    """``actions_mps [B, steps, N, 2]``: what the controller chose at every step."""
+
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def start(self, envs):
+        self.actions_mps = np.empty((len(envs), self.steps, envs[0].num_robots, 2))
+
+    def actions(self, t, envs, actions, act_s):
+        self.actions_mps[:, t] = actions
+
+
+class Timing(Hook):
+    """``step_s [steps]``: the wall time of each control step's ``act``, divided by the batch size
+    (the amortised cost per environment)."""
+
+    def __init__(self, steps: int):
+        self.step_s = np.empty(steps)
+
+    def actions(self, t, envs, actions, act_s):
+        self.step_s[t] = act_s / len(envs)
+
+
+class Samples(Hook):
+    """``samples_mps [steps, N, M, 2]`` (NaN between draws): every ``every``-th step, M extra actions
+    of environment 0 drawn by ``draw(env) -> [M, N, 2]`` (e.g. a policy's own samples, with noise that
+    leaves the rollout's alone)."""
+
+    def __init__(self, steps: int, num_samples: int, every: int, draw: Callable[[CoverageEnv], np.ndarray]):
+        self.steps, self.num_samples, self.every, self.draw = steps, num_samples, every, draw
+
+    def start(self, envs):
+        self.samples_mps = np.full((self.steps, envs[0].num_robots, self.num_samples, 2), np.nan)
+
+    def actions(self, t, envs, actions, act_s):
+        if t % self.every == 0:
+            self.samples_mps[t] = self.draw(envs[0]).transpose(1, 0, 2)
+
+
+class Convergence(Hook):
+    """``converged_at``: the first step t (1-based, as the library counts) whose actions were all zero
+    (environment 0), or None."""
+
+    converged_at: int | None = None
+
+    def actions(self, t, envs, actions, act_s):
+        if self.converged_at is None and not np.any(actions[0]):
+            self.converged_at = t + 1
 
 
 @dataclass
@@ -29,18 +169,9 @@ class Rollout:
         }
 
 
-def rollout(env: CoverageEnv, controller: Controller, steps: int) -> Rollout:
-    """Reset ``env`` and run ``controller`` for ``steps`` steps."""
+def rollout(env: CoverageEnv, controller: Controller, steps: int, hooks: Sequence[Hook] = ()) -> Rollout:
+    """Reset ``env`` and run ``controller`` for ``steps`` steps (``hooks``: what else to record)."""
     env.reset()
-    costs = np.empty(steps + 1)
-    positions = np.empty((steps + 1, env.num_robots, 2))
-    costs[0], positions[0] = 1.0, env.positions_m
-    converged_at = None
-    for t in range(1, steps + 1):
-        u = controller(env)
-        if converged_at is None and not np.any(u):
-            converged_at = t
-        env.step(u)
-        costs[t] = env.normalized_cost()
-        positions[t] = env.positions_m
-    return Rollout(costs, positions, converged_at)
+    costs, positions, converged = Costs(steps), Positions(steps), Convergence()
+    run([env], act_alone(controller), [costs, positions, converged, *hooks], steps)
+    return Rollout(costs.cost[0], positions.positions_m[0], converged.converged_at)
