@@ -153,13 +153,9 @@ def datagen(
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
     learner: dict = {}
     if policy is not None:
-        from madp.data_schema.manifest import sha256_file
-        from madp.training.checkpoint import load_policy
+        from madp.datagen.relabel import learner_settings
 
-        _, meta = load_policy(policy)
-        learner = {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"],
-                   "beta": beta,
-                   "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in ("root", "num_samples", "created_by", "more")}}
+        learner = learner_settings(policy, beta)
     elif beta:
         raise ValueError("--beta: only meaningful with --policy")
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,

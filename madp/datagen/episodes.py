@@ -1,4 +1,5 @@
-"""Run the clairvoyant expert on one scenario and record samples (U0, X, O)."""
+"""Run the clairvoyant expert (or a learner it relabels, :mod:`.relabel`) on one scenario and record
+samples (U0, X, O)."""
 
 from __future__ import annotations
 
@@ -11,45 +12,7 @@ from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
 from madp.sim.rollout import Hook, act_alone, run
 
 from .plan import DatagenConfig, ShardTask, episode_id, scenario_seed
-
-_POLICIES: dict = {}  # (path, sha256) -> loaded policy, once per process
-
-
-def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray], np.ndarray]:
-    """What moves the swarm in a relabelling rollout: ``driver(env, expert_u) -> u`` executes the
-    expert's action with probability beta (one draw per step) and the learned policy's otherwise.
-
-    The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
-    here, so a shard's bytes do not depend on which process makes it or how many there are."""
-    import torch
-
-    from madp.data_schema.manifest import sha256_file
-    from madp.policies import LPACPolicy, MADPPolicy, load
-
-    key = (policy["path"], policy["sha256"])
-    if key not in _POLICIES:
-        if sha256_file(policy["path"]) != policy["sha256"]:
-            raise ValueError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
-        model, _ = load(policy["path"], policy["kind"])
-        _POLICIES[key] = MADPPolicy(model) if policy["kind"] == "madp" else LPACPolicy(model)
-    learner = _POLICIES[key]
-    if hasattr(learner, "reset"):
-        learner.reset(seed)
-    coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
-    beta = float(policy["beta"])
-
-    def drive(env: CoverageEnv, expert_u: np.ndarray) -> np.ndarray:
-        if coin.random() < beta:
-            return expert_u
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
-            return learner(env)
-        finally:
-            torch.set_num_threads(threads)
-
-    return drive
-
+from .relabel import learner_driver
 
 class EpisodeRecorder(Hook):
     """The rollout hook (:mod:`madp.sim.rollout`) of :func:`record_episode`: records a sample at every

@@ -11,7 +11,8 @@ A checkpoint is a directory, written under a temporary name and renamed into pla
 
 Loading never trusts a file: a truncated, empty or garbled file, weights of another model, a state
 of the wrong structure or a pickle holding anything but tensors and plain containers is a
-one-line ``ValueError`` naming the file (and never suggests loading it less safely).
+one-line ``ValueError`` naming the file (and never suggests loading it less safely). Reading a
+policy file is :mod:`madp.policies.checkpoint` (re-exported here for training's use).
 """
 
 from __future__ import annotations
@@ -23,12 +24,14 @@ import shutil
 from pathlib import Path
 
 import torch
-from safetensors import safe_open
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 from torch import nn
 
 from madp.io.atomic import temp_path
-from madp.models import MADP, LPACConfig, MADPConfig
+from madp.policies.checkpoint import load_policy, load_weights, read_weights
+
+__all__ = ["POLICY_FILE", "STATE_KEYS", "load_checkpoint_state", "load_policy", "load_weights", "read_state",
+           "read_weights", "recover_checkpoints", "save_checkpoint", "save_policy"]
 
 POLICY_FILE = "policy.safetensors"
 #: What ``state.pt`` must hold, with the types its values must have.
@@ -45,58 +48,6 @@ def save_policy(path: Path, model: nn.Module, kind: str, meta: dict) -> None:
     config = model.config.to_dict()
     metadata = {"kind": kind, "config": json.dumps(config), **{k: json.dumps(v) for k, v in meta.items()}}
     save_file(_contiguous(model.state_dict()), str(path), metadata=metadata)
-
-
-def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module, dict]:
-    """Build the model a policy file describes and load its weights. Returns (model in eval mode, meta)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            metadata = dict(f.metadata() or {})
-    except Exception as e:  # safetensors raises its own error types for truncated/garbled files
-        raise ValueError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
-    state = read_weights(path, device)
-    kind = metadata.get("kind")
-    if kind not in ("madp", "lpac") or "config" not in metadata:
-        raise ValueError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")
-    try:
-        config = json.loads(metadata["config"])
-        if kind == "madp":
-            model = MADP(MADPConfig.from_dict(config))
-        else:
-            from madp.models.lpac import LPAC  # torch_geometric: seconds to import, so only when needed
-
-            model = LPAC(LPACConfig.from_dict(config))
-        meta = {k: json.loads(v) for k, v in metadata.items() if k not in ("kind", "config")}
-    except (ValueError, TypeError, KeyError, AttributeError) as e:
-        raise ValueError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
-    load_weights(model, state, path, f"the {kind} config it carries")
-    meta["kind"], meta["config"] = kind, config
-    return model.to(device).eval(), meta
-
-
-def read_weights(path: Path, device: str | torch.device = "cpu") -> dict:
-    """The tensors of a safetensors file; a one-line ValueError for anything unreadable."""
-    try:
-        return load_file(str(path), device=str(device))
-    except Exception as e:  # truncated, empty or garbled: safetensors' own error types
-        raise ValueError(f"{path}: not a readable safetensors file ({type(e).__name__}); the checkpoint is damaged") from None
-
-
-def load_weights(model: nn.Module, state: dict, path: Path, what: str = "this run's model") -> None:
-    """Load ``state`` into ``model`` after checking names and shapes; a one-line ValueError otherwise."""
-    own = model.state_dict()
-    missing = [k for k in own if k not in state]
-    unexpected = [k for k in state if k not in own]
-    shape = [k for k in own if k in state and tuple(state[k].shape) != tuple(own[k].shape)]
-    if missing or unexpected or shape:
-        example = (f"'{shape[0]}' is {list(state[shape[0]].shape)}, expected {list(own[shape[0]].shape)}" if shape
-                   else f"'{(missing or unexpected)[0]}' is {'missing' if missing else 'unexpected'}")
-        raise ValueError(f"{path}: weights of another model, not {what} ({len(missing)} missing, {len(unexpected)} "
-                         f"unexpected, {len(shape)} of another shape; e.g. {example})")
-    model.load_state_dict(state)
 
 
 def save_checkpoint(directory: Path, model: nn.Module, policy_model: nn.Module, kind: str, meta: dict,

@@ -188,7 +188,7 @@ class Trainer:
 
     def _init_from(self, path: Path, load_weights: bool = True) -> None:
         """Warm start: the weights of a policy file of the same model (optimizer and counters fresh)."""
-        from .checkpoint import load_policy
+        from madp.policies.checkpoint import load_policy
 
         model, meta = load_policy(path)
         if meta["kind"] != self.cfg.model or meta["config"] != self.raw.config.to_dict():

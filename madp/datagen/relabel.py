@@ -1,0 +1,66 @@
+"""Expert relabelling (DAgger): a learned policy drives, every sample keeps the expert's label.
+
+:func:`learner_settings` reads a policy file once, when the plan is made, into the ``policy`` of a
+:class:`~madp.datagen.plan.DatagenConfig` (path, checksum, kind, beta and the dataset the policy
+learned from); :func:`learner_driver` turns it into what moves the swarm in each episode. The
+learner is built by :func:`madp.controllers.make_controller` (MADP decentralized or LPAC-K3), so its
+model is loaded once per process, in the one cache of models.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from madp.data_schema.manifest import sha256_file
+from madp.sim import CoverageEnv
+
+#: What of the policy's dataset a relabelled dataset records as its parent.
+PARENT_KEYS = ("root", "num_samples", "created_by", "more")
+
+_verified: set = set()  # (path, sha256) of the policy files checked in this process
+
+
+def learner_settings(policy: str | Path, beta: float) -> dict:
+    """The ``policy`` setting of a relabelling plan: the policy file's path, checksum and kind, the
+    probability ``beta`` that a step executes the expert's action, and the policy's parent dataset."""
+    from madp.policies.checkpoint import load_policy
+
+    policy = Path(policy)
+    _, meta = load_policy(policy)
+    return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
+            "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}
+
+
+def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray], np.ndarray]:
+    """What moves the swarm in a relabelling rollout: ``driver(env, expert_u) -> u`` executes the
+    expert's action with probability beta (one draw per step) and the learned policy's otherwise.
+
+    The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
+    here, so a shard's bytes do not depend on which process makes it or how many there are."""
+    import torch
+
+    from madp.controllers import make_controller
+
+    key = (policy["path"], policy["sha256"])
+    if key not in _verified:
+        if sha256_file(policy["path"]) != policy["sha256"]:
+            raise ValueError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
+        _verified.add(key)
+    learner = make_controller(policy["kind"], policy["path"], seed=seed)  # MADP decentralized or LPAC-K3
+    coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
+    beta = float(policy["beta"])
+
+    def drive(env: CoverageEnv, expert_u: np.ndarray) -> np.ndarray:
+        if coin.random() < beta:
+            return expert_u
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return learner(env)
+        finally:
+            torch.set_num_threads(threads)
+
+    return drive

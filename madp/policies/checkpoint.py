@@ -1,0 +1,91 @@
+"""Reading policy files: ``policy.safetensors`` (weights + metadata) into a model, without executing
+code, and the checkpoints shipped with madp (``madp/checkpoints/``).
+
+A policy file is self-describing: its metadata holds the kind (``madp`` / ``lpac``), the model config,
+the action statistics, the dataset and the step, so acting needs nothing else. Loading never trusts
+a file: a truncated, empty or garbled file, metadata of another kind, or weights of another model is
+a one-line ``ValueError`` naming the file. Writing checkpoints is training's job; training reads
+policy files through this module, never the reverse.
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import load_file
+from torch import nn
+
+from madp.models import MADP, LPACConfig, MADPConfig
+
+SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
+
+
+def shipped_checkpoint(kind: str) -> Path | None:
+    """Path of the checkpoint that ships with the package, or None if this install has none."""
+    p = Path(str(resources.files("madp") / "checkpoints" / SHIPPED[kind]))
+    return p if p.is_file() else None
+
+
+def load(path: str | Path, expect: str, device: str = "cpu"):
+    """Load a policy checkpoint and check its kind; one-line errors for missing/incompatible files."""
+    model, meta = load_policy(path, device)
+    torch.set_flush_denormal(True)  # subnormal weights (training flushes them too) would slow every step
+    if meta["kind"] != expect:
+        raise ValueError(f"{path}: is a {meta['kind']} checkpoint, expected {expect}")
+    return model, meta
+
+
+def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module, dict]:
+    """Build the model a policy file describes and load its weights. Returns (model in eval mode, meta)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            metadata = dict(f.metadata() or {})
+    except Exception as e:  # safetensors raises its own error types for truncated/garbled files
+        raise ValueError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+    state = read_weights(path, device)
+    kind = metadata.get("kind")
+    if kind not in ("madp", "lpac") or "config" not in metadata:
+        raise ValueError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")
+    try:
+        config = json.loads(metadata["config"])
+        if kind == "madp":
+            model = MADP(MADPConfig.from_dict(config))
+        else:
+            from madp.models.lpac import LPAC  # torch_geometric: seconds to import, so only when needed
+
+            model = LPAC(LPACConfig.from_dict(config))
+        meta = {k: json.loads(v) for k, v in metadata.items() if k not in ("kind", "config")}
+    except (ValueError, TypeError, KeyError, AttributeError) as e:
+        raise ValueError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
+    load_weights(model, state, path, f"the {kind} config it carries")
+    meta["kind"], meta["config"] = kind, config
+    return model.to(device).eval(), meta
+
+
+def read_weights(path: Path, device: str | torch.device = "cpu") -> dict:
+    """The tensors of a safetensors file; a one-line ValueError for anything unreadable."""
+    try:
+        return load_file(str(path), device=str(device))
+    except Exception as e:  # truncated, empty or garbled: safetensors' own error types
+        raise ValueError(f"{path}: not a readable safetensors file ({type(e).__name__}); the checkpoint is damaged") from None
+
+
+def load_weights(model: nn.Module, state: dict, path: Path, what: str = "this run's model") -> None:
+    """Load ``state`` into ``model`` after checking names and shapes; a one-line ValueError otherwise."""
+    own = model.state_dict()
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    shape = [k for k in own if k in state and tuple(state[k].shape) != tuple(own[k].shape)]
+    if missing or unexpected or shape:
+        example = (f"'{shape[0]}' is {list(state[shape[0]].shape)}, expected {list(own[shape[0]].shape)}" if shape
+                   else f"'{(missing or unexpected)[0]}' is {'missing' if missing else 'unexpected'}")
+        raise ValueError(f"{path}: weights of another model, not {what} ({len(missing)} missing, {len(unexpected)} "
+                         f"unexpected, {len(shape)} of another shape; e.g. {example})")
+    model.load_state_dict(state)

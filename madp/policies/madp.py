@@ -1,0 +1,128 @@
+"""MADP behind the simulator's controller interface, ``policy(env) -> actions [N, 2]`` m/s, with a
+sampler (DDIM or DPM-Solver++, S steps, η for DDIM; :class:`SamplingSettings`).
+
+``mode="decentralized"``: each robot samples from the tokens of its own neighbourhood and keeps its
+own action (what the robots would run); ``mode="centralized"``: one masked pass over the whole swarm
+(a faster approximation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
+
+from .swarm import clip_speed, swarm_tensors
+
+if TYPE_CHECKING:
+    from madp.sim import CoverageEnv
+
+
+def noise_generator(seed: int, device: torch.device | str = "cpu") -> torch.Generator:
+    """The sampling-noise generator of one episode, seeded by its scenario seed."""
+    g = torch.Generator(device=device)
+    g.manual_seed(int(seed) & ((1 << 63) - 1))
+    return g
+
+
+@dataclass(frozen=True)
+class SamplingSettings:
+    """How MADP samples its actions: the reverse diffusion (``sampler``, ``sampling_steps`` S, DDIM's
+    ``eta``; see :mod:`madp.models.samplers`) and whether each robot's initial noise is drawn once
+    per episode (``fixed_noise``). Checked on construction; the defaults are the measured best."""
+
+    sampler: str = DEFAULT_SAMPLER
+    sampling_steps: int = DEFAULT_SAMPLING_STEPS
+    eta: float = 0.0
+    fixed_noise: bool = False
+
+    def __post_init__(self) -> None:
+        check_sampler(self.sampler, self.sampling_steps, self.eta)
+
+    def as_dict(self) -> dict:
+        """What names the sampling in tables, recordings and a suite's config."""
+        return asdict(self)
+
+
+class MADPPolicy:
+    """``seed`` fixes the sampling noise (a generator reset per episode by :meth:`reset`);
+    ``sampling`` chooses the reverse diffusion (:class:`SamplingSettings`).
+
+    ``sampling.fixed_noise``: each robot draws its initial noise ``U_K`` once per episode and reuses it
+    at every control step (with a deterministic sampler the policy is then a function of the state),
+    instead of a fresh draw per step; per-step noise of DDIM with η > 0 stays fresh."""
+
+    def __init__(self, model, mode: str = "decentralized", sampling: SamplingSettings | None = None, seed: int = 0,
+                 device: str = "cpu"):
+        if mode not in ("decentralized", "centralized"):
+            raise ValueError(f"--madp-mode: expected decentralized or centralized, got {mode!r}")
+        self.sampling = sampling = sampling or SamplingSettings()
+        self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
+        self.sampler, self.fixed_noise = sampling.sampler, bool(sampling.fixed_noise)
+        self._fixed: dict[int, torch.Tensor] = {}
+        self.stochastic = self.sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
+        self.device = torch.device(device)
+        self.reset(seed)
+
+    def reset(self, seed: int) -> None:
+        self.generator = noise_generator(seed, self.device)
+        self._fixed = {}
+
+    def _initial_noise(self, g: torch.Generator, shape: tuple[int, ...]) -> torch.Tensor:
+        """``U_K`` for one swarm: a fresh draw from ``g``, or with ``fixed_noise`` the episode's first
+        draw from ``g`` (kept per generator: one generator per environment and episode)."""
+        if not self.fixed_noise:
+            return torch.randn(shape, generator=g, device=self.device)
+        if id(g) not in self._fixed:
+            self._fixed[id(g)] = torch.randn(shape, generator=g, device=self.device)
+        return self._fixed[id(g)]
+
+    def _sample(self, obs: torch.Tensor, pos: torch.Tensor, **noise) -> torch.Tensor:
+        fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
+        return fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, **noise)
+
+    @torch.no_grad()
+    def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
+        """``num_samples`` independent swarm actions [M, N, 2] (m/s) for the current state.
+
+        ``generator`` (default: the policy's own) lets a caller draw extra samples, e.g. for
+        visualisation, without changing the noise the rollout itself uses."""
+        own = generator is None
+        generator = generator or self.generator
+        obs = torch.from_numpy(env.observations()).to(self.device)
+        pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
+        obs = obs[None].expand(num_samples, *obs.shape)
+        pos = pos[None].expand(num_samples, *pos.shape)
+        noise = {"generator": generator}
+        if own and self.fixed_noise and num_samples == 1:
+            noise["noise"] = self._initial_noise(generator, (1, env.num_robots, self.model.config.action_dim))
+        u = self.model.denormalize_actions(self._sample(obs, pos, **noise)).double().cpu().numpy()
+        return np.stack([clip_speed(x, env.params.max_speed_mps) for x in u])
+
+    def __call__(self, env: CoverageEnv) -> np.ndarray:
+        return self.sample(env, 1)[0]
+
+    @torch.no_grad()
+    def act_batch(self, envs: list[CoverageEnv], generators: list[torch.Generator]) -> np.ndarray:
+        """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, sampled as one batch.
+
+        Environment b's noise comes from ``generators[b]`` in the order a lone :meth:`sample` would
+        draw it (U_K, then one draw per step when the sampler is stochastic: DDIM with η > 0), so
+        batching changes only float rounding."""
+        def draws(g: torch.Generator, shape) -> tuple[torch.Tensor, torch.Tensor | None]:
+            first = self._initial_noise(g, shape)
+            steps = (torch.stack([torch.randn(shape, generator=g, device=self.device) for _ in range(self.num_steps)])
+                     if self.stochastic else None)
+            return first, steps
+
+        obs, pos = swarm_tensors(envs, self.device)
+        shape = (1, pos.shape[1], self.model.config.action_dim)
+        noise = [draws(g, shape) for g in generators]
+        first = torch.cat([n[0] for n in noise])
+        steps = torch.cat([n[1] for n in noise], dim=1) if self.stochastic else None
+        u = self.model.denormalize_actions(self._sample(obs, pos, noise=first, step_noise=steps)).double().cpu().numpy()
+        return np.stack([clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])

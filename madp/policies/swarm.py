@@ -1,0 +1,23 @@
+"""What both learned policies do around their model: the swarm's tensors in, speed-clipped actions out."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from madp.sim import CoverageEnv
+
+
+def swarm_tensors(envs: list[CoverageEnv], device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """``obs [B, N, 4, 32, 32]`` and ``pos_m [B, N, 2]`` (float32) of B environments with the same N."""
+    obs = torch.from_numpy(np.stack([e.observations() for e in envs])).to(device)
+    pos = torch.from_numpy(np.stack([e.positions_m for e in envs]).astype(np.float32)).to(device)
+    return obs, pos
+
+
+def clip_speed(u: np.ndarray, u_max: float) -> np.ndarray:
+    speed = np.linalg.norm(u, axis=1, keepdims=True)
+    return np.where(speed > u_max, u * (u_max / np.maximum(speed, 1e-12)), u)
