@@ -95,6 +95,11 @@ def controller_info(name: str) -> ControllerInfo:
     return CONTROLLERS[name]
 
 
+def display_name(name: str) -> str:
+    """The name of a controller in tables and plot legends (a name not in the registry as it is)."""
+    return CONTROLLERS[name].display if name in CONTROLLERS else name
+
+
 def checkpoint_kind(name: str) -> str | None:
     """The checkpoint kind a controller needs ("lpac" or "madp"), or None for the classical ones."""
     info = controller_info(name)

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from madp.controllers import CONTROLLERS
-from madp.eval.report import paper_results  # SPEC §5: the paper's J(600)/J(0)
+from madp.eval.paper import paper_results  # SPEC §5: the paper's J(600)/J(0)
 
 
 def name(controller: str) -> str:

@@ -9,7 +9,8 @@ from madp.sim import ClairvoyantCVT, DecentralizedCVT
 
 
 def test_the_registry_is_the_one_list_of_names():
-    from madp.eval.report import PAPER_CONTROLLERS, order_controllers
+    from madp.eval.paper import PAPER_CONTROLLERS
+    from madp.eval.stats import order_controllers
     from madp.eval.runner import EvalConfig
 
     assert NAMES == ("clairvoyant", "dcvt", "lpac", "madp", "madp_central")

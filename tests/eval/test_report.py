@@ -1,4 +1,5 @@
-"""Tests of the evaluation report (``madp.eval.report``): statistics, tables, JSON and plots.
+"""Tests of the evaluation report (``madp.eval.report`` and its ``stats``, ``tables``, ``plots`` and
+``paper``): statistics, tables, JSON and plots.
 
 Synthetic ``curves`` / ``results`` tables are built with pyarrow in ``tmp_path``; every statistic is
 checked against a direct NumPy / SciPy computation on the same numbers.
@@ -17,17 +18,11 @@ import pyarrow.parquet as pq
 import pytest
 from scipy import stats
 
-from madp.eval.report import (
-    PAPER_RESULTS,
-    cost_curve_bands,
-    group_slug,
-    markdown_table,
-    order_controllers,
-    order_groups,
-    scale_improvement_matrix,
-    summarize,
-    write_report,
-)
+from madp.eval.paper import PAPER_RESULTS
+from madp.eval.plots import group_slug
+from madp.eval.report import write_report
+from madp.eval.stats import cost_curve_bands, order_controllers, order_groups, scale_improvement_matrix, summarize
+from madp.eval.tables import markdown_table
 
 RATES = {"clairvoyant": 0.30, "dcvt": 0.08, "lpac": 0.15, "madp": 0.20, "madp_central": 0.22}
 
