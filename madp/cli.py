@@ -331,17 +331,10 @@ def scenario_import_cmd(
     peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range."),
 ) -> None:
     """Turn traffic-signal locations into a scenario file (the 1024 m square with the most signals)."""
-    import numpy as np
+    from madp.eval.cities import city_scenario
+    from madp.sim import SimParams
 
-    from madp.eval.cities import import_city
-    from madp.sim import Scenario, SimParams
-
-    src = import_city(source, seed=seed, sigma_range=sigma, peak_range=peak)
-    params = SimParams(num_robots=num_robots, num_features=len(src.features), sigma_range_m=sigma, peak_range=peak)
-    robots = np.random.default_rng([seed, 1]).uniform(1e-4, params.world_size - 1e-4, (num_robots, 2))
-    sc = Scenario(src.features, robots, params, name=src.name, seed=seed,
-                  source=f"{source.name}: {src.num_signals_in_square} of {src.num_signals_total} signals, "
-                         f"square SW corner {src.square_origin_latlon}, centre {src.square_center_latlon}")
+    sc, src = city_scenario(source, seed, SimParams(num_robots=num_robots, sigma_range_m=sigma, peak_range=peak))
     sc.save(out)
     typer.echo(f"{src.name}: {src.num_signals_in_square} of {src.num_signals_total} signals in the best 1024 m "
                f"square (centre {src.square_center_latlon[0]:.5f}, {src.square_center_latlon[1]:.5f}) -> {out}")

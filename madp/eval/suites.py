@@ -70,17 +70,9 @@ class EnvSpec:
     def scenario(self) -> Scenario:
         if not self.city_file:
             return Scenario.random(self.seed, self.params, LAUNCHES[self.launch], name=f"{self.suite}/{self.key}")
-        from .cities import import_city
+        from .cities import city_scenario
 
-        src = import_city(self.city_file, seed=self.seed, sigma_range=self.params.sigma_range_m,
-                          peak_range=self.params.peak_range)
-        params = replace(self.params, num_features=len(src.features))
-        rng = np.random.default_rng([self.seed, 1])
-        w = float(params.world_size)
-        robots = rng.uniform(1e-4, w - 1e-4, (params.num_robots, 2))
-        return Scenario(src.features, robots, params, name=src.name, seed=self.seed,
-                        source=f"{Path(self.city_file).name}: {src.num_signals_in_square} of "
-                               f"{src.num_signals_total} signals, square centre {src.square_center_latlon}")
+        return city_scenario(self.city_file, self.seed, self.params)[0]
 
 
 def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = None) -> list[EnvSpec]:
