@@ -32,6 +32,7 @@ from .action_stats import ActionStatsMixin
 from .attention_mask import attention_mask, packed_neighbourhood_mask, pairwise_offsets
 from .config import MADPConfig
 from .diffusion import DDPMSchedule
+from .packing import pack_neighbourhoods
 from .perception import PerceptionCNN, apply_per_robot
 from .samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, make_sampler, sample_loop
 from .transformer import RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTransformerEncoder, attention_bias
@@ -59,21 +60,6 @@ class TimestepEmbedding(nn.Module):
     def forward(self, k: Tensor) -> Tensor:
         w = self.mlp[0].weight
         return self.mlp(self.sinusoidal(k).to(w.dtype))
-
-
-def pack_rows(sizes: Tensor, row_len: int) -> tuple[Tensor, Tensor]:
-    """Next-fit packing of items of ``sizes [U]`` (each <= row_len) into rows of ``row_len``:
-    ``(row [U], offset [U])`` long, items in their given order. One pass over U python ints
-    (U <= robots in the batch, once per control step)."""
-    row, off, r, fill = [], [], 0, 0
-    for s in sizes.tolist():
-        if fill + s > row_len:
-            r, fill = r + 1, 0
-        row.append(r)
-        off.append(fill)
-        fill += s
-    dev = sizes.device
-    return torch.tensor(row, dtype=torch.long, device=dev), torch.tensor(off, dtype=torch.long, device=dev)
 
 
 class MADP(ActionStatsMixin):
@@ -323,46 +309,14 @@ class MADP(ActionStatsMixin):
         mask = self.attention_mask(pos_m, valid)
         tokens = self.embed_tokens(obs, pos_m, mask, valid)  # [B, N, 34], one per robot
 
-        # Neighbourhood ("unit") membership per ego; padding egos have an empty one.
-        rows = (mask & valid.unsqueeze(-1)).reshape(b * n, n)
-        ego_batch = torch.arange(b, device=dev).repeat_interleave(n)
-        if dedupe and not independent_noise:
-            key = torch.cat([ego_batch.unsqueeze(1), rows.long()], dim=1)
-            uniq, unit_of_ego = torch.unique(key, dim=0, return_inverse=True)  # sorted: swarm first
-            unit_batch, unit_rows = uniq[:, 0], uniq[:, 1:].bool()
-        else:
-            unit_of_ego = torch.arange(b * n, device=dev)
-            unit_batch, unit_rows = ego_batch, rows
-        # Pack: token t is robot tok_robot[t] as a member of unit tok_unit[t] (tokens grouped by unit,
-        # robots ascending). Units are laid out whole, side by side, in rows of row_len tokens
-        # (next fit, in unit order); a row may mix swarms since units never see each other.
-        tok_unit, tok_robot = unit_rows.nonzero(as_tuple=True)
-        tok_batch = unit_batch[tok_unit]
-        sizes = unit_rows.sum(1)
-        row_len = max(self.decentralized_row_tokens, int(sizes.max()) if sizes.numel() else 1, 1)
-        row_of_unit, off_of_unit = pack_rows(sizes, row_len)
-        first_tok = sizes.cumsum(0) - sizes
-        tok_row = row_of_unit[tok_unit]
-        tok_slot = off_of_unit[tok_unit] + torch.arange(tok_unit.numel(), device=dev) - first_tok[tok_unit]
-        rows_n = int(row_of_unit.max()) + 1 if row_of_unit.numel() else 1
-
-        def pack(t: Tensor) -> Tensor:
-            """``[B, N, *F] -> [R, row_len, *F]``: every token's copy of its robot's data (0 at padding)."""
-            out = t.new_zeros(rows_n, row_len, *t.shape[2:])
-            out[tok_row, tok_slot] = t[tok_batch, tok_robot]
-            return out
-
-        valid_p = torch.zeros(rows_n, row_len, dtype=torch.bool, device=dev)
-        valid_p[tok_row, tok_slot] = True
-        group_p = torch.full((rows_n, row_len), -1, dtype=torch.long, device=dev)
-        group_p[tok_row, tok_slot] = tok_unit
-        pos_p = pack(pos_m)
-        mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius, valid_p, group_p)
+        packed = pack_neighbourhoods(mask, valid, self.decentralized_row_tokens, dedupe and not independent_noise)
+        pack, pos_p = packed.pack, packed.pack(pos_m)
+        mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius, packed.valid, packed.group)
         memory = self.encode_tokens(pack(tokens), pos_p, mask_p)
 
         dt = memory.dtype
         swarm_shape = (b, n, self.config.action_dim)
-        packed_shape = (rows_n, row_len, self.config.action_dim)
+        packed_shape = (packed.rows, packed.row_len, self.config.action_dim)
         if independent_noise:
             x = torch.randn(packed_shape, generator=generator, device=dev, dtype=dt)
 
@@ -379,13 +333,6 @@ class MADP(ActionStatsMixin):
                 return pack(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
 
         x = self._sample_loop(memory, pos_p, mask_p, x, solver, draw)
-        # Each ego reads its own action: the token of (its unit, itself).
-        tok_of = torch.zeros(unit_rows.shape, dtype=torch.long, device=dev)
-        tok_of[tok_unit, tok_robot] = torch.arange(tok_unit.numel(), device=dev)
-        ego_tok = tok_of[unit_of_ego, torch.arange(n, device=dev).repeat(b)]
-        if tok_unit.numel():
-            own = x[tok_row[ego_tok], tok_slot[ego_tok]]
-        else:  # no valid robot at all
-            own = x.new_zeros(b * n, self.config.action_dim)
+        own = packed.own(x)  # each ego's own action
         out = own.reshape(b, n, -1) * valid.unsqueeze(-1).to(x.dtype)
         return out[0] if single else out

@@ -21,7 +21,8 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from madp.models import MADP
-from madp.models.madp import TimestepEmbedding, pack_rows
+from madp.models.madp import TimestepEmbedding
+from madp.models.packing import pack_rows
 
 sys.path.insert(0, str(Path(__file__).parent))
 from models_testutils import grid_positions, random_obs, tiny_madp_config  # noqa: E402
