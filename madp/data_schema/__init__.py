@@ -14,12 +14,11 @@ This layer knows nothing of how samples are made (``sim``/``datagen``) or used (
 The benchmark lives in :mod:`madp.data_schema.bench` (``bench_io``).
 """
 
+from .action_stats import ActionStats, ActionStatsAccumulator
 from .manifest import (
     FORMATS,
     MANIFEST_FILENAME,
     SPLITS,
-    ActionStats,
-    ActionStatsAccumulator,
     Manifest,
     ShardInfo,
     SplitInfo,

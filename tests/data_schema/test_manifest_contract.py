@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from madp.data_schema import ActionStatsAccumulator, DataError, Manifest, ShardInfo, SplitInfo
-from madp.data_schema.manifest import ActionStats, _exact_scaled_sums, _req, sha256_file
+from madp.data_schema.action_stats import ActionStats, _exact_scaled_sums
+from madp.data_schema.manifest import _req, sha256_file
 
 _HEX = "0123456789abcdef" * 4
 
