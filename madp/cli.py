@@ -55,6 +55,13 @@ def _write_json(path: Path, obj: object) -> None:
     write_text_atomic(path, json.dumps(obj, indent=1) + "\n")
 
 
+def _show(lines: List[str], result: object, out: Optional[Path]) -> None:
+    """Print a bench's lines; write its figures as JSON to ``out`` when given."""
+    typer.echo("\n".join(lines))
+    if out:
+        _write_json(out, result)
+
+
 # --- rollout ---------------------------------------------------------------------------------
 @app.command()
 def rollout(
@@ -167,24 +174,10 @@ def datagen(
 def dataset_info_cmd(root: Path = typer.Argument(..., help="Dataset directory."),
                      json_out: bool = typer.Option(False, "--json", help="Print JSON instead of a table.")) -> None:
     """Counts, sizes, parameters and action statistics."""
-    from madp.data_schema.dataset import dataset_info
+    from madp.data_schema.dataset import dataset_info, format_info
 
     info = dataset_info(root)
-    if json_out:
-        typer.echo(json.dumps(info, indent=1))
-        return
-    typer.echo(f"{info['root']}: {info['num_samples']} samples, N = {info['num_robots']}, {info['format']}, "
-               f"schema v{info['schema_version']}, code {info['code_version']}")
-    typer.echo(f"  {'split':<6}{'samples':>9}{'episodes':>10}{'shards':>8}{'MB':>10}")
-    for name in ("train", "val", "test"):
-        s = info["splits"][name]
-        typer.echo(f"  {name:<6}{s['samples']:>9}{s['episodes']:>10}{s['shards']:>8}{s['bytes'] / 1e6:>10.1f}")
-    typer.echo(f"  {info['bytes'] / 1e6:.1f} MB on disk, {info['bytes_per_sample'] / 1e3:.1f} kB per sample")
-    st = info["action_stats"]
-    if st:
-        typer.echo(f"  actions (train): mean {st['mean'][0]:+.4f} {st['mean'][1]:+.4f} m/s, "
-                   f"std {st['std'][0]:.4f} {st['std'][1]:.4f} m/s over {st['count']} robot-samples")
-    typer.echo(f"  made by: {info['created_by']}")
+    typer.echo(json.dumps(info, indent=1) if json_out else "\n".join(format_info(info)))
 
 
 @dataset_app.command("verify")
@@ -245,17 +238,15 @@ def train(
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
     from madp.training import resolve, train as run_train
+    from madp.training.config import parse_weights
 
     if threads:
         import torch
 
         torch.set_num_threads(threads)
 
-    try:
-        weights = tuple(float(w) for w in data_weights.split(",")) if data_weights else None
-    except ValueError:
-        raise ValueError(f"--data-weights: expected comma-separated numbers, got {data_weights!r}") from None
-    cfg = resolve(model, preset, data=str(data[0]), more_data=tuple(str(d) for d in data[1:]), data_weights=weights,
+    cfg = resolve(model, preset, data=str(data[0]), more_data=tuple(str(d) for d in data[1:]),
+                  data_weights=parse_weights(data_weights) if data_weights else None,
                   out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
@@ -296,28 +287,25 @@ def eval_cmd(
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import EvalConfig, available_controllers, run_suite
     from madp.eval.suites import SUITES
+    from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
+    from madp.policies import SamplingSettings
 
     suites = list(SUITES) if suite == "all" else [suite]
     if suite != "all" and suite not in SUITES:
         raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else DEFAULT
-    from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
-
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
-    sampler = sampler or DEFAULT_SAMPLER
-    sampling_steps = sampling_steps or DEFAULT_SAMPLING_STEPS
-    check_sampler(sampler, sampling_steps, eta)
+    sampling = SamplingSettings(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
-                     madp=str(madp) if madp else None, sampler=sampler, sampling_steps=sampling_steps, eta=eta,
-                     fixed_noise=fixed_noise, workers=workers, ray=_ray_address(ray), record=record, video=video,
-                     cities=str(cities) if cities else None)
+                     madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=_ray_address(ray),
+                     record=record, video=video, cities=str(cities) if cities else None)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     skipped = [c for c in requested if c not in used]
     if skipped:
         typer.echo(f"note: no checkpoint for {', '.join(skipped)}; evaluating {', '.join(used)}")
     for s in suites:
-        summary = run_suite(cfg, s, overwrite=overwrite)
+        run_suite(cfg, s, overwrite=overwrite)
         typer.echo((Path(cfg.out) / s / "summary.md").read_text())
 
 
@@ -356,10 +344,7 @@ def bench_sim_cmd(
         res = bench_sim(scenarios=scenarios, steps=steps, seed=seed, library=library)
     except ImportError as e:  # --library without a working coverage_control
         raise UserError(f"--library: {e}") from e
-    for line in format_table(res):
-        typer.echo(line)
-    if out:
-        _write_json(out, res)
+    _show(format_table(res), res, out)
 
 
 @bench_app.command("datagen")
@@ -371,33 +356,10 @@ def bench_datagen_cmd(
     ray: Optional[str] = _ray_option("Measure the Ray backend's per-task overhead on this cluster ('auto', HOST:PORT) instead of a Ray started on this machine (measured whenever madp[ray] is installed)."),
 ) -> None:
     """End-to-end datagen rate at N = F = 32, the projected time for 100k samples, and the Ray backend's per-task overhead."""
-    from madp.datagen.bench import bench_datagen, bench_ray_overhead
-    from madp.io.ray_backend import RayUnavailable
+    from madp.datagen.bench import bench_datagen_and_ray, format_table
 
-    r = bench_datagen(n, workers, format)
-    s = r["stages"]
-    typer.echo(f"stage medians (one core): expert step {s['expert_step_ms']:.2f} ms, observations "
-               f"{s['observations_ms']:.2f} ms, float16 {s['float16_ms']:.2f} ms -> {r['per_sample_ms_one_core']:.1f} ms/sample "
-               f"(library: {r['library_per_sample_ms_one_core']:.0f} ms/sample, {r['stage_speedup_vs_library']:.1f}x)")
-    typer.echo(f"datagen {n} samples ({format}): {r['wall_s']:.1f} s wall, {r['samples_per_s']:.1f} samples/s, "
-               f"{r['bytes_per_sample'] / 1e3:.1f} kB/sample")
-    typer.echo(f"projected 100k samples: {r['projected_100k_min']:.1f} min "
-               f"(library cost model: {r['library_projected_100k_h']:.1f} h)")
-    try:
-        r["ray"] = x = bench_ray_overhead(ray, fmt=format)
-    except RayUnavailable:
-        if ray is not None:
-            raise
-        r["ray"] = None
-        typer.echo('Ray backend: not measured (Ray is not installed; pip install "madp[ray]")')
-    else:
-        typer.echo(f"Ray backend ({x['address']}, {x['cpus']} CPUs): start {x['start_s']:.1f} s once per run; trivial task "
-                   f"round trip {x['trivial_task_ms']:.1f} ms (median of {x['trivial_tasks']})")
-        typer.echo(f"Ray shard task ({x['shard_samples']} samples): {x['shard_ray_s']:.2f} s on Ray vs {x['shard_local_s']:.2f} s "
-                   f"in this process (medians of {x['repeats']}): {x['shard_ratio']:.3f}x ({1e3 * x['shard_overhead_s']:+.0f} ms); "
-                   f"dispatch (round trip less the task's own time) {x['shard_dispatch_ms']:.1f} ms per task")
-    if out:
-        _write_json(out, r)
+    r = bench_datagen_and_ray(n, workers, format, ray)
+    _show(format_table(r, n, format), r, out)
 
 
 @bench_app.command("io")
@@ -409,21 +371,12 @@ def bench_io_cmd(
     """Bytes per sample and decode throughput: MCAP, Parquet, and a float16 numpy memmap baseline."""
     import tempfile
 
-    from madp.data_schema.bench import bench_io
+    from madp.data_schema.bench import bench_io, format_table
     from madp.datagen.bench import real_episodes
 
     with tempfile.TemporaryDirectory() as d:
         r = bench_io(d, repeats=repeats, episodes=real_episodes(n))
-    base = r["npy_memmap"]["read_samples_per_s"]
-    typer.echo(f"{r['num_samples']} real samples, N = {r['num_robots']}, median of {repeats} warm reads")
-    typer.echo(f"{'format':<12}{'kB/sample':>10}{'read samples/s':>16}{'vs memmap':>11}{'no-CRC samples/s':>18}")
-    for fmt in ("mcap", "parquet", "npy_memmap"):
-        x = r[fmt]
-        nocrc = f"{x['read_samples_per_s_no_crc']:>18.0f}" if "read_samples_per_s_no_crc" in x else f"{'-':>18}"
-        typer.echo(f"{fmt:<12}{x['bytes_per_sample'] / 1e3:>10.1f}{x['read_samples_per_s']:>16.0f}"
-                   f"{x['read_samples_per_s'] / base:>10.2f}x{nocrc}")
-    if out:
-        _write_json(out, r)
+    _show(format_table(r, repeats), r, out)
 
 
 @bench_app.command("train")
@@ -433,17 +386,10 @@ def bench_train_cmd(
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """Training samples/s of both models and presets; MADP FLOP/s as a fraction of matmul FLOP/s."""
-    from madp.models.bench import bench_train_step
+    from madp.models.bench import bench_train_all, format_train_table
 
-    rows = [bench_train_step(m, p, b, steps=steps if p == "cpu" else max(1, steps - 1), warmup=1)
-            for m, p, b in (("madp", "cpu", 32), ("lpac", "cpu", 32), ("lpac", "paper", 32), ("madp", "paper", paper_batch))]
-    typer.echo(f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}  {'share of matmul peak'}")
-    for r in rows:
-        frac = f"{100 * r['fraction_of_matmul']:.0f}% of {r['matmul_flops_per_s'] / 1e9:.0f} GFLOP/s" if "fraction_of_matmul" in r else "-"
-        gf = f"{r['flops_per_step'] / 1e9:.1f}" if "flops_per_step" in r else "-"
-        typer.echo(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}  {frac}")
-    if out:
-        _write_json(out, rows)
+    rows = bench_train_all(steps, paper_batch)
+    _show(format_train_table(rows), rows, out)
 
 
 @bench_app.command("infer")
@@ -458,36 +404,11 @@ def bench_infer_cmd(
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
-    from madp.eval.bench import bench_infer_all, parse_grid
+    from madp.eval.bench import bench_infer_all, format_table, parse_grid
 
     r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
                         repeats=repeats, workers=workers)
-    sw = r["sweep"]
-    if sw is None:
-        typer.echo("no trained MADP checkpoint: no closed-loop sweep (latency of DDIM-50 only)")
-    else:
-        b = sw["baseline"]
-        typer.echo(f"decentralized MADP on uniform ({sw['envs']} envs, {sw['steps']} steps): mean J/J0 ± SE; "
-                   f"DDIM-50 {b['mean']:.4f} ± {b['se']:.4f}")
-        if not b["se_at_most_0.02"]:
-            typer.echo(f"note: DDIM-50's SE {b['se']:.3f} > 0.02; about {b['envs_for_se_0.02']} environments would reach it "
-                       f"(--envs)")
-        typer.echo(f"{'sampler':<8}{'S':>4}{'mean':>9}{'SE':>8}{'diff vs DDIM-50':>22}{'within 1 SE':>13}{'eval ms/env-step':>18}")
-        for x in sw["rows"]:
-            typer.echo(f"{x['sampler']:<8}{x['steps']:>4}{x['mean']:>9.4f}{x['se']:>8.4f}"
-                       f"{x['diff_vs_baseline']:>+13.4f} ± {x['diff_se']:.4f}{'yes' if x['within_one_se'] else 'no':>13}"
-                       f"{x['eval_ms_per_env_step']:>18.1f}")
-        c = sw["centralized_ddim50"]
-        typer.echo(f"centralized-masked DDIM-50: {c['mean']:.4f}, {c['eval_ms_per_env_step']:.1f} eval ms/env-step; "
-                   f"S* = {', '.join(f'{k}: {v}' for k, v in sw['s_star'].items())}; best: {r['best']['sampler']} "
-                   f"S = {r['best']['steps']}; plot {r['plot']}")
-    typer.echo(f"{'preset':<7}{'mode':<15}{'sampler':<8}{'S':>4}{'latency ms':>12}{'vs DDIM-50':>12}"
-               f"   (median, N = 32, 2 threads; paper: {r['paper_latency_s']} s on an RTX 3090)")
-    for x in r["latency"]:
-        typer.echo(f"{x['preset']:<7}{x['mode']:<15}{x['sampler']:<8}{x['num_steps']:>4}{1e3 * x['latency_s']:>12.1f}"
-                   f"{x['speedup_vs_ddim50']:>11.1f}x")
-    if out:
-        _write_json(out, r)
+    _show(format_table(r), r, out)
 
 
 def _click_exceptions():

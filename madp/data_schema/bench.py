@@ -208,3 +208,16 @@ def bench_io(
 
 
 __all__ = ["bench_io", "synthetic_episodes", "synthetic_observations", "synthetic_world_map"]
+
+
+def format_table(r: dict, repeats: int) -> list[str]:
+    """The lines ``madp bench io`` prints for a :func:`bench_io` result (``repeats`` reads per format)."""
+    base = r["npy_memmap"]["read_samples_per_s"]
+    lines = [f"{r['num_samples']} real samples, N = {r['num_robots']}, median of {repeats} warm reads",
+             f"{'format':<12}{'kB/sample':>10}{'read samples/s':>16}{'vs memmap':>11}{'no-CRC samples/s':>18}"]
+    for fmt in ("mcap", "parquet", "npy_memmap"):
+        x = r[fmt]
+        nocrc = f"{x['read_samples_per_s_no_crc']:>18.0f}" if "read_samples_per_s_no_crc" in x else f"{'-':>18}"
+        lines.append(f"{fmt:<12}{x['bytes_per_sample'] / 1e3:>10.1f}{x['read_samples_per_s']:>16.0f}"
+                     f"{x['read_samples_per_s'] / base:>10.2f}x{nocrc}")
+    return lines

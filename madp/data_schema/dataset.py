@@ -75,6 +75,23 @@ def dataset_info(root: os.PathLike | str) -> dict:
     }
 
 
+def format_info(info: dict) -> list[str]:
+    """The lines ``madp dataset info`` prints for a :func:`dataset_info` result."""
+    lines = [f"{info['root']}: {info['num_samples']} samples, N = {info['num_robots']}, {info['format']}, "
+             f"schema v{info['schema_version']}, code {info['code_version']}",
+             f"  {'split':<6}{'samples':>9}{'episodes':>10}{'shards':>8}{'MB':>10}"]
+    for name in ("train", "val", "test"):
+        s = info["splits"][name]
+        lines.append(f"  {name:<6}{s['samples']:>9}{s['episodes']:>10}{s['shards']:>8}{s['bytes'] / 1e6:>10.1f}")
+    lines.append(f"  {info['bytes'] / 1e6:.1f} MB on disk, {info['bytes_per_sample'] / 1e3:.1f} kB per sample")
+    st = info["action_stats"]
+    if st:
+        lines.append(f"  actions (train): mean {st['mean'][0]:+.4f} {st['mean'][1]:+.4f} m/s, "
+                     f"std {st['std'][0]:.4f} {st['std'][1]:.4f} m/s over {st['count']} robot-samples")
+    lines.append(f"  made by: {info['created_by']}")
+    return lines
+
+
 def verify_dataset(root: os.PathLike | str, on_shard: Optional[Callable[[Path], None]] = None) -> int:
     """Check every shard's size and sha256, then decode every sample and check counts and values.
 

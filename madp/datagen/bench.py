@@ -137,3 +137,39 @@ def bench_ray_overhead(address: str | None = None, shard_samples: int = 128, rep
             "shard_samples": shard_samples, "repeats": repeats, "shard_local_s": local_s, "shard_ray_s": ray_s,
             "shard_overhead_s": ray_s - local_s, "shard_ratio": ray_s / local_s,
             "shard_dispatch_ms": float(np.median(dispatch) * 1e3)}
+
+
+def bench_datagen_and_ray(num_samples: int = 1024, workers: int = 0, fmt: str = "mcap", address: str | None = None) -> dict:
+    """What ``madp bench datagen`` measures: :func:`bench_datagen`, and under ``"ray"`` the Ray backend's
+    overhead (:func:`bench_ray_overhead`) or None when Ray is not installed and no ``address`` was given."""
+    from madp.io.ray_backend import RayUnavailable
+
+    r = bench_datagen(num_samples, workers, fmt)
+    try:
+        r["ray"] = bench_ray_overhead(address, fmt=fmt)
+    except RayUnavailable:
+        if address is not None:
+            raise
+        r["ray"] = None
+    return r
+
+
+def format_table(r: dict, num_samples: int, fmt: str) -> list[str]:
+    """The lines ``madp bench datagen`` prints for a :func:`bench_datagen_and_ray` result."""
+    s = r["stages"]
+    lines = [f"stage medians (one core): expert step {s['expert_step_ms']:.2f} ms, observations "
+             f"{s['observations_ms']:.2f} ms, float16 {s['float16_ms']:.2f} ms -> {r['per_sample_ms_one_core']:.1f} ms/sample "
+             f"(library: {r['library_per_sample_ms_one_core']:.0f} ms/sample, {r['stage_speedup_vs_library']:.1f}x)",
+             f"datagen {num_samples} samples ({fmt}): {r['wall_s']:.1f} s wall, {r['samples_per_s']:.1f} samples/s, "
+             f"{r['bytes_per_sample'] / 1e3:.1f} kB/sample",
+             f"projected 100k samples: {r['projected_100k_min']:.1f} min "
+             f"(library cost model: {r['library_projected_100k_h']:.1f} h)"]
+    x = r["ray"]
+    if x is None:
+        return lines + ['Ray backend: not measured (Ray is not installed; pip install "madp[ray]")']
+    return lines + [
+        f"Ray backend ({x['address']}, {x['cpus']} CPUs): start {x['start_s']:.1f} s once per run; trivial task "
+        f"round trip {x['trivial_task_ms']:.1f} ms (median of {x['trivial_tasks']})",
+        f"Ray shard task ({x['shard_samples']} samples): {x['shard_ray_s']:.2f} s on Ray vs {x['shard_local_s']:.2f} s "
+        f"in this process (medians of {x['repeats']}): {x['shard_ratio']:.3f}x ({1e3 * x['shard_overhead_s']:+.0f} ms); "
+        f"dispatch (round trip less the task's own time) {x['shard_dispatch_ms']:.1f} ms per task"]

@@ -169,3 +169,33 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         best = min(cands, key=lambda x: x["latency_s"])
         out["best"] = {"sampler": best["sampler"], "steps": best["num_steps"]}
     return out
+
+
+def format_table(r: dict) -> list[str]:
+    """The lines ``madp bench infer`` prints for a :func:`bench_infer_all` result."""
+    lines: list[str] = []
+    sw = r["sweep"]
+    if sw is None:
+        lines.append("no trained MADP checkpoint: no closed-loop sweep (latency of DDIM-50 only)")
+    else:
+        b = sw["baseline"]
+        lines.append(f"decentralized MADP on uniform ({sw['envs']} envs, {sw['steps']} steps): mean J/J0 ± SE; "
+                     f"DDIM-50 {b['mean']:.4f} ± {b['se']:.4f}")
+        if not b["se_at_most_0.02"]:
+            lines.append(f"note: DDIM-50's SE {b['se']:.3f} > 0.02; about {b['envs_for_se_0.02']} environments would reach it "
+                         f"(--envs)")
+        lines.append(f"{'sampler':<8}{'S':>4}{'mean':>9}{'SE':>8}{'diff vs DDIM-50':>22}{'within 1 SE':>13}{'eval ms/env-step':>18}")
+        for x in sw["rows"]:
+            lines.append(f"{x['sampler']:<8}{x['steps']:>4}{x['mean']:>9.4f}{x['se']:>8.4f}"
+                         f"{x['diff_vs_baseline']:>+13.4f} ± {x['diff_se']:.4f}{'yes' if x['within_one_se'] else 'no':>13}"
+                         f"{x['eval_ms_per_env_step']:>18.1f}")
+        c = sw["centralized_ddim50"]
+        lines.append(f"centralized-masked DDIM-50: {c['mean']:.4f}, {c['eval_ms_per_env_step']:.1f} eval ms/env-step; "
+                     f"S* = {', '.join(f'{k}: {v}' for k, v in sw['s_star'].items())}; best: {r['best']['sampler']} "
+                     f"S = {r['best']['steps']}; plot {r['plot']}")
+    lines.append(f"{'preset':<7}{'mode':<15}{'sampler':<8}{'S':>4}{'latency ms':>12}{'vs DDIM-50':>12}"
+                 f"   (median, N = 32, 2 threads; paper: {r['paper_latency_s']} s on an RTX 3090)")
+    for x in r["latency"]:
+        lines.append(f"{x['preset']:<7}{x['mode']:<15}{x['sampler']:<8}{x['num_steps']:>4}{1e3 * x['latency_s']:>12.1f}"
+                     f"{x['speedup_vs_ddim50']:>11.1f}x")
+    return lines

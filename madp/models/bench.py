@@ -223,6 +223,23 @@ def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeat
     }
 
 
+def bench_train_all(steps: int = 3, paper_batch: int = 196) -> list[dict]:
+    """What ``madp bench train`` measures: :func:`bench_train_step` of both models and presets
+    (``steps`` timed steps per cpu configuration, one fewer per paper one)."""
+    return [bench_train_step(m, p, b, steps=steps if p == "cpu" else max(1, steps - 1), warmup=1)
+            for m, p, b in (("madp", "cpu", 32), ("lpac", "cpu", 32), ("lpac", "paper", 32), ("madp", "paper", paper_batch))]
+
+
+def format_train_table(rows: list[dict]) -> list[str]:
+    """The lines ``madp bench train`` prints for :func:`bench_train_all`'s rows."""
+    lines = [f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}  {'share of matmul peak'}"]
+    for r in rows:
+        frac = f"{100 * r['fraction_of_matmul']:.0f}% of {r['matmul_flops_per_s'] / 1e9:.0f} GFLOP/s" if "fraction_of_matmul" in r else "-"
+        gf = f"{r['flops_per_step'] / 1e9:.1f}" if "flops_per_step" in r else "-"
+        lines.append(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}  {frac}")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description="madp model micro-benchmarks")
     p.add_argument("--preset", default="cpu")

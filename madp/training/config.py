@@ -110,6 +110,14 @@ PRESET_DEFAULTS = {
 }
 
 
+def parse_weights(text: str) -> tuple[float, ...]:
+    """``"1,0.5"`` -> ``(1.0, 0.5)``: one weight per dataset (``--data-weights``)."""
+    try:
+        return tuple(float(w) for w in text.split(","))
+    except ValueError:
+        raise ValueError(f"--data-weights: expected comma-separated numbers, got {text!r}") from None
+
+
 def resolve(model: str, preset: str, **overrides) -> TrainConfig:
     """The preset's defaults for ``model``, then any explicit overrides (None means 'keep')."""
     base = TrainConfig(model=model, preset=preset)

@@ -162,3 +162,6 @@ def test_convert_keeps_samples_and_manifest_content(reference, tmp_path):
                     np.testing.assert_array_equal(getattr(x, f), getattr(y, f))
     info = json.loads(madp("dataset", "info", str(tmp_path / "pq"), "--json").stdout)
     assert info["num_samples"] == 120 and info["format"] == "parquet"
+    table = madp("dataset", "info", str(tmp_path / "pq")).stdout.splitlines()
+    assert table[0].startswith(f"{tmp_path / 'pq'}: 120 samples") and [t.split()[0] for t in table[2:5]] == [
+        "train", "val", "test"]

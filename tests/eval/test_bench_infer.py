@@ -6,7 +6,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from madp.eval.bench import bench_infer_all, parse_grid
+from madp.eval.bench import bench_infer_all, format_table, parse_grid
 from tests.test_reliability_errors import assert_one_line, cli
 
 
@@ -40,6 +40,9 @@ def test_sweep_s_star_plot_and_latency(tmp_path, checkpoints):
     lat = {(x["mode"], x["sampler"], x["num_steps"]) for x in r["latency"]}
     assert ("decentralized", "ddim", 50) in lat and ("centralized", "ddim", 50) in lat
     assert r["best"]["sampler"] in ("ddim", "dpm++")
+    lines = format_table(r)  # what madp bench infer prints: the baseline, one row per setting, the latencies
+    assert "DDIM-50" in lines[0] and sum(x.startswith("dpm++") for x in lines) == 2
+    assert sum(x.startswith("cpu") for x in lines) == len(r["latency"])
     # a second call only reads the finished suites
     stamp = (tmp_path / "dpm++-2" / "uniform" / "results.parquet").stat().st_mtime_ns
     again = bench_infer_all(str(checkpoints / "madp.safetensors"), tmp_path, {"dpm++": (2,)}, envs=3, steps=2,
