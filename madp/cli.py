@@ -1,8 +1,6 @@
-"""``madp``: the command line. Thin commands that parse options and call the layers.
-
-User mistakes (a bad flag or value, a missing or malformed file, a wrong schema version, an output
-directory another job is writing) end with one line ``madp: error: …`` on stderr and exit status 2;
-set MADP_DEBUG=1 to see the traceback instead.
+"""``madp``: the command line. Thin commands: each parses its options, calls one function of the
+layers and prints the result. A user's mistake ends in one line ``madp: error: …`` naming the flag or
+file (exit status 2), a bug in its traceback and a request for a report (exit status 1): :mod:`madp.cli_main`.
 """
 
 from __future__ import annotations
@@ -20,96 +18,18 @@ from typing import List, Optional, Tuple
 
 import typer
 
-from madp.controllers import CONTROLLERS, DEFAULT, NAMES
+from madp.controllers import DEFAULT, NAMES
+from madp.errors import SettingError
+from madp.io.atomic import write_json_atomic
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
-bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks (medians, with a baseline measured in the same run).")
-app.add_typer(bench_app, name="bench")
-
-
-class UserError(Exception):
-    """A mistake in what the user asked for; printed as one line."""
-
-
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from madp.io.lock import DirectoryLocked
-    from madp.io.owned import NotOwned
-    from madp.io.ray_backend import RayUnavailable
-    from madp.sim.scenario import ScenarioError
-
-    errors: list[type[BaseException]] = [UserError, ScenarioError, ValueError, OSError, DirectoryLocked, NotOwned,
-                                         RayUnavailable]
-    try:
-        from madp.data_schema import DataError
-
-        errors.append(DataError)
-    except ImportError:  # pragma: no cover - data_schema is part of the package
-        pass
-    return tuple(errors)
-
-
-def _write_json(path: Path, obj: object) -> None:
-    from madp.io.atomic import write_text_atomic
-
-    write_text_atomic(path, json.dumps(obj, indent=1) + "\n")
-
-
-def _show(lines: List[str], result: object, out: Optional[Path]) -> None:
-    """Print a bench's lines; write its figures as JSON to ``out`` when given."""
-    typer.echo("\n".join(lines))
-    if out:
-        _write_json(out, result)
-
-
-# --- rollout ---------------------------------------------------------------------------------
-@app.command()
-def rollout(
-    scenario: Path = typer.Option(..., "--scenario", help="Scenario JSON (features, robots, optional params)."),
-    controller: str = typer.Option("clairvoyant", help=" | ".join(NAMES)),
-    checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint of a learned controller (default: the shipped one)."),
-    seed: Optional[int] = typer.Option(None, help="MADP's sampling-noise seed (default: the scenario's seed, else 0, as madp eval)."),
-    steps: int = typer.Option(600, min=0, help="Control steps to run."),
-    out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
-    video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
-) -> None:
-    """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
-    from madp.controllers import make_controller
-    from madp.sim import CoverageEnv, Scenario
-    from madp.sim import rollout as run
-
-    if controller not in NAMES:
-        raise UserError(f"--controller: expected one of {', '.join(NAMES)}, got {controller!r}")
-    if checkpoint is not None and not CONTROLLERS[controller].learned:
-        raise UserError(f"--checkpoint: the {controller} controller takes no checkpoint")
-    if video is not None:
-        from madp.video import check_video_path
-
-        try:
-            check_video_path(video)  # before the rollout, not after it
-        except ValueError as e:
-            raise UserError(f"--video: {e}") from None
-    sc = Scenario.load(scenario)
-    noise_seed = seed if seed is not None else (sc.seed if sc.seed is not None else 0)
-    ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed)
-    frames = []
-    if video is not None:
-        from madp.video import Frames
-
-        frames = [Frames(video, steps)]
-    result = run(CoverageEnv(sc), ctrl, steps, frames)
-    _write_json(out, result.to_json(controller))
-    typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
-               f" (converged at {result.converged_at}) -> {out}")
-    if frames:
-        v = frames[0].write(progress=True)
-        typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
-
-
-# --- datagen and datasets --------------------------------------------------------------------
 dataset_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Inspect, verify, convert and merge datasets.")
+scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Scenario files.")
+bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks (medians, with a baseline measured in the same run).")
 app.add_typer(dataset_app, name="dataset")
-
+app.add_typer(scenario_app, name="scenario")
+app.add_typer(bench_app, name="bench")
 
 #: ``--ray`` of datagen and eval; given alone, main() supplies ``local`` (madp.io.ray_backend.RAY_LOCAL).
 RAY_HELP = ("Run the tasks on Ray: alone, a Ray started on this machine; 'auto': the cluster running here "
@@ -121,14 +41,42 @@ def _ray_option(help: str = RAY_HELP):
     return typer.Option(None, "--ray", metavar="[ADDRESS]", help=help)
 
 
-def _parse_shards(spec: Optional[str]) -> Optional[tuple[int, int]]:
-    if spec is None:
-        return None
-    try:
-        i, j = (int(v) for v in spec.split(":"))
-    except ValueError:
-        raise UserError(f"--shards: expected I:J (two integers), got {spec!r}") from None
-    return i, j
+def _show(lines: List[str], result: object, out: Optional[Path]) -> None:
+    """Print a bench's lines; write its figures as JSON to ``out`` when given."""
+    typer.echo("\n".join(lines))
+    if out:
+        write_json_atomic(out, result)
+
+
+# --- rollout, datagen, datasets ----------------------------------------------------------------
+@app.command()
+def rollout(
+    scenario: Path = typer.Option(..., "--scenario", help="Scenario JSON (features, robots, optional params)."),
+    controller: str = typer.Option("clairvoyant", help=" | ".join(NAMES)),
+    checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint of a learned controller (default: the shipped one)."),
+    seed: Optional[int] = typer.Option(None, help="MADP's sampling-noise seed (default: the scenario's seed, else 0, as madp eval)."),
+    steps: int = typer.Option(600, min=0, help="Control steps to run."),
+    out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
+    video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
+) -> None:
+    """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
+    from madp.controllers import controller_info, make_controller
+    from madp.sim import CoverageEnv, Scenario, rollout as run
+    from madp.video import Frames, check_video_path
+
+    learned = controller_info(controller).learned  # an unknown name is refused before anything is read
+    if checkpoint is not None and not learned:
+        raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
+    frames = [Frames(check_video_path(video), steps)] if video is not None else []  # checked before the rollout
+    sc = Scenario.load(scenario)
+    ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0)
+    result = run(CoverageEnv(sc), ctrl, steps, frames)
+    write_json_atomic(out, result.to_json(controller))
+    typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
+               f" (converged at {result.converged_at}) -> {out}")
+    for f in frames:
+        v = f.write(progress=True)
+        typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
 
 
 @app.command()
@@ -153,21 +101,14 @@ def datagen(
     ray: Optional[str] = _ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
-    from madp.datagen import DatagenConfig, run_datagen
+    from madp.datagen import DatagenConfig, learner_settings, parse_shards, run_datagen
     from madp.sim import SimParams
 
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
-    learner: dict = {}
-    if policy is not None:
-        from madp.datagen.relabel import learner_settings
-
-        learner = learner_settings(policy, beta)
-    elif beta:
-        raise ValueError("--beta: only meaningful with --policy")
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
-                        policy=learner, max_steps=max_steps or (600 if policy is not None else 2100))
-    run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite, ray=_ray_address(ray))
+                        policy=learner_settings(policy, beta), max_steps=max_steps or (600 if policy else 2100))
+    run_datagen(cfg, out, workers=workers, shards=parse_shards(shards), overwrite=overwrite, ray=ray)
 
 
 @dataset_app.command("info")
@@ -185,8 +126,7 @@ def dataset_verify_cmd(root: Path = typer.Argument(..., help="Dataset directory.
     """Checksums of every shard and a full decode of every sample; non-zero exit naming any fault."""
     from madp.data_schema.dataset import verify_dataset
 
-    n = verify_dataset(root)
-    typer.echo(f"{root}: ok, {n} samples verified")
+    typer.echo(f"{root}: ok, {verify_dataset(root)} samples verified")
 
 
 @dataset_app.command("convert")
@@ -212,7 +152,7 @@ def dataset_merge_cmd(parts: List[Path] = typer.Argument(..., help="Part directo
         typer.echo(f"merged {len(parts)} part(s) -> {out}: {m.num_samples} samples")
 
 
-# --- training ----------------------------------------------------------------------------------
+# --- training and evaluation -------------------------------------------------------------------
 @app.command()
 def train(
     model: str = typer.Option("madp", help="madp | lpac"),
@@ -244,7 +184,6 @@ def train(
         import torch
 
         torch.set_num_threads(threads)
-
     cfg = resolve(model, preset, data=str(data[0]), more_data=tuple(str(d) for d in data[1:]),
                   data_weights=parse_weights(data_weights) if data_weights else None,
                   out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
@@ -256,11 +195,6 @@ def train(
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "
                    f"best val loss {res.get('best_val_loss', float('nan')):.5f} -> {cfg.out}")
-
-
-# --- evaluation ----------------------------------------------------------------------------------
-scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Scenario files.")
-app.add_typer(scenario_app, name="scenario")
 
 
 @app.command("eval")
@@ -286,24 +220,21 @@ def eval_cmd(
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import EvalConfig, available_controllers, run_suite
-    from madp.eval.suites import SUITES
-    from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
+    from madp.eval.suites import suite_names
     from madp.policies import SamplingSettings
 
-    suites = list(SUITES) if suite == "all" else [suite]
-    if suite != "all" and suite not in SUITES:
-        raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    suites = suite_names(suite)
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else DEFAULT
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
-    sampling = SamplingSettings(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise)
+    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
-                     madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=_ray_address(ray),
+                     madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
-    skipped = [c for c in requested if c not in used]
-    if skipped:
-        typer.echo(f"note: no checkpoint for {', '.join(skipped)}; evaluating {', '.join(used)}")
+    if used != requested:
+        skipped = ", ".join(c for c in requested if c not in used)
+        typer.echo(f"note: no checkpoint for {skipped}; evaluating {', '.join(used)}")
     for s in suites:
         run_suite(cfg, s, overwrite=overwrite)
         typer.echo((Path(cfg.out) / s / "summary.md").read_text())
@@ -328,7 +259,7 @@ def scenario_import_cmd(
                f"square (centre {src.square_center_latlon[0]:.5f}, {src.square_center_latlon[1]:.5f}) -> {out}")
 
 
-# --- benchmarks ------------------------------------------------------------------------------
+# --- benchmarks ----------------------------------------------------------------------------------
 @bench_app.command("sim")
 def bench_sim_cmd(
     scenarios: int = typer.Option(3, min=1, help="Random scenarios (seeds SEED, SEED+1, ...)."),
@@ -343,7 +274,7 @@ def bench_sim_cmd(
     try:
         res = bench_sim(scenarios=scenarios, steps=steps, seed=seed, library=library)
     except ImportError as e:  # --library without a working coverage_control
-        raise UserError(f"--library: {e}") from e
+        raise SettingError("library", str(e)) from e
     _show(format_table(res), res, out)
 
 
@@ -369,13 +300,9 @@ def bench_io_cmd(
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """Bytes per sample and decode throughput: MCAP, Parquet, and a float16 numpy memmap baseline."""
-    import tempfile
+    from madp.data_schema.bench import bench_io_real, format_table
 
-    from madp.data_schema.bench import bench_io, format_table
-    from madp.datagen.bench import real_episodes
-
-    with tempfile.TemporaryDirectory() as d:
-        r = bench_io(d, repeats=repeats, episodes=real_episodes(n))
+    r = bench_io_real(n, repeats)
     _show(format_table(r, repeats), r, out)
 
 
@@ -411,76 +338,12 @@ def bench_infer_cmd(
     _show(format_table(r), r, out)
 
 
-def _click_exceptions():
-    """click's exception classes as typer raises them (recent typer vendors click as typer._click)."""
-    import typer.core
-
-    mod = getattr(typer.core, "_click", None)
-    if mod is None:  # typer < 0.2x: click itself
-        import click as mod
-    return mod.exceptions
-
-
-def _fail(msg: str) -> None:
-    sys.stderr.write(f"madp: error: {' '.join(msg.split())}\n")
-    sys.exit(2)
-
-
-def _ray_address(ray: Optional[str]) -> Optional[str]:
-    """The ``--ray`` value for the runners, checking first that Ray is installed (a one-line error)."""
-    if ray is not None:
-        from madp.io.ray_backend import import_ray
-
-        import_ray()
-    return ray
-
-
-def _optional_ray_value(args: List[str]) -> List[str]:
-    """``--ray`` followed by nothing or by another option means ``--ray local`` (click has no options
-    with an optional value)."""
-    from madp.io.ray_backend import RAY_LOCAL
-
-    out = list(args)
-    for i, a in enumerate(out):
-        if a == "--":
-            break
-        if a == "--ray" and (i + 1 == len(out) or out[i + 1].startswith("-")):
-            out.insert(i + 1, RAY_LOCAL)
-            break
-    return out
-
-
 def main(argv: Optional[List[str]] = None) -> None:
-    """Entry point: run the app, turning user mistakes into one line and exit status 2.
+    """Entry point (:func:`madp.cli_main.run`): a user's mistake is one line, exit status 2; a bug its
+    traceback and a request to report it, exit status 1."""
+    from madp.cli_main import run
 
-    Bad flags and values (typer's range checks included) are click exceptions: printed as one line,
-    not click's usage box. Running a group without arguments still prints its help."""
-    args = _optional_ray_value(sys.argv[1:] if argv is None else argv)
-    cx = _click_exceptions()
-    try:
-        rv = app(args=args, prog_name="madp", standalone_mode=False)
-    except getattr(cx, "NoArgsIsHelpError", ()) as e:
-        e.show()
-        sys.exit(e.exit_code)
-    except cx.ClickException as e:
-        if os.environ.get("MADP_DEBUG"):
-            raise
-        _fail(e.format_message())
-    except typer.Abort as e:  # typer's translation of an EOFError (a file that ends early)
-        if os.environ.get("MADP_DEBUG"):
-            raise
-        _fail(f"unexpected end of input ({type(e.__cause__).__name__ if e.__cause__ else 'aborted'})")
-    except KeyboardInterrupt:
-        sys.stderr.write("madp: interrupted\n")
-        sys.exit(130)
-    except _user_errors() as e:
-        if os.environ.get("MADP_DEBUG"):
-            raise
-        _fail(str(e).splitlines()[0] if str(e) else type(e).__name__)
-    if rv == 130:  # typer's translation of KeyboardInterrupt
-        sys.stderr.write("madp: interrupted\n")
-    if isinstance(rv, int) and rv:
-        sys.exit(rv)
+    run(app, sys.argv[1:] if argv is None else argv)
 
 
 if __name__ == "__main__":

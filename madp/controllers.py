@@ -24,6 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from importlib import import_module
 
+from madp.errors import SettingError
+
 #: ``kind`` of the controllers that need no checkpoint; a learned controller's kind is the kind of
 #: checkpoint it loads (``"lpac"`` or ``"madp"``, :func:`madp.policies.load`).
 CLASSICAL_KIND = "classical"
@@ -91,7 +93,7 @@ _models: dict = {}
 def controller_info(name: str) -> ControllerInfo:
     """The registry's entry of ``name``; a one-line error naming the choices for any other name."""
     if name not in CONTROLLERS:
-        raise ValueError(f"--controller: expected one of {', '.join(NAMES)}, got {name!r}")
+        raise SettingError("controller", f"expected one of {', '.join(NAMES)}, got {name!r}")
     return CONTROLLERS[name]
 
 
@@ -113,7 +115,7 @@ def resolve_checkpoint(name: str, checkpoint: str | None) -> str:
     kind = checkpoint_kind(name)
     path = checkpoint or shipped_checkpoint(kind)
     if path is None:
-        raise ValueError(f"controller {name}: no --checkpoint given and no {kind} checkpoint ships with this install")
+        raise SettingError("checkpoint", f"controller {name} needs one, and no {kind} checkpoint ships with this install")
     return str(path)
 
 

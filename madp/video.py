@@ -19,6 +19,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from madp.errors import MadpError, SettingError
 from madp.io.atomic import atomic_path, temp_path
 from madp.render import FrameRenderer
 from madp.sim.rollout import Hook
@@ -33,17 +34,17 @@ def _cv2():
     try:
         import cv2
     except ImportError:
-        raise ValueError("videos need OpenCV: pip install 'madp[video]' (opencv-python-headless)") from None
+        raise MadpError("videos need OpenCV: pip install 'madp[video]' (opencv-python-headless)") from None
     return cv2
 
 
 def check_video_path(path: str | os.PathLike) -> Path:
     """``path`` if a video can be written there: a ``.mp4`` name whose directory exists or can be made
-    and takes a new file (probed with this process's temporary name). Raises ValueError for another
+    and takes a new file (probed with this process's temporary name). Raises a SettingError for another
     suffix, OSError (naming the path) when it cannot be written; checks that OpenCV is installed."""
     path = Path(path)
     if path.suffix.lower() != SUFFIX:
-        raise ValueError(f"expected a {SUFFIX} file name, got {str(path)!r}")
+        raise SettingError("video", f"expected a {SUFFIX} file name, got {str(path)!r}")
     _cv2()
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))

@@ -1,4 +1,4 @@
-"""The command line: rollout output and one-line errors."""
+"""The command line: rollout output, one-line errors for a user's mistakes, a traceback for a bug."""
 
 import json
 import subprocess
@@ -76,3 +76,36 @@ def test_rollout_with_a_learned_controller(tmp_path, controller):
     assert code == 0, err
     res = json.loads(out.read_text())
     assert res["controller"] == controller and len(res["cost"]) == 3 and res["cost"][-1] != 1.0  # the robots moved
+
+
+def test_a_bug_prints_its_traceback_and_asks_for_a_report(tmp_path, monkeypatch):
+    """An exception that is not madp's own (here a deliberate IndexError inside a command) is a bug: the
+    traceback, then one line asking for a report, exit status 1; never the one line of a user's mistake."""
+    import madp.data_schema.dataset as dataset
+    from tests.test_reliability_errors import cli
+
+    def broken(root):
+        return [][0]
+
+    monkeypatch.setattr(dataset, "dataset_info", broken)
+    code, err = cli("dataset", "info", tmp_path)
+    lines = err.strip().splitlines()
+    assert code == 1 and lines[0] == "Traceback (most recent call last):", err
+    assert "IndexError: list index out of range" in err and "in broken" in err
+    assert lines[-1].startswith("madp: internal error: this is a bug in madp") and "madp: error:" not in err
+
+
+@pytest.mark.parametrize("args,line", [
+    (["datagen", "--n", "0"], "madp: error: --n: expected a positive number of samples, got 0"),
+    (["datagen", "--n", "8", "--beta", "0.5"], "madp: error: --beta: only meaningful with a policy"),
+    (["eval", "--sampler", "euler"], "madp: error: --sampler: expected one of ['ddim', 'dpm++'], got 'euler'"),
+    (["eval", "--suite", "moon"], "madp: error: --suite: expected one of ['uniform', 'sigma', 'cities', 'launch', "
+                                  "'scale', 'all'], got 'moon'"),
+    (["datagen", "--n", "8", "--world-size", "100"],
+     "madp: error: --world-size must be a multiple of 16 and >= local_map_size, got 100"),
+])
+def test_a_settings_error_names_its_flag(tmp_path, args, line):
+    """The library describes the value by its own name (``num_samples``); the command line names the flag."""
+    from tests.test_reliability_errors import assert_one_line, cli
+
+    assert assert_one_line(*cli(*args, "--out", tmp_path / "o")) == line

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from madp.controllers import CLASSICAL, CONTROLLERS, DEFAULT, LEARNED, NAMES, checkpoint_kind, make_controller
+from madp.errors import SettingError
 from madp.sim import ClairvoyantCVT, DecentralizedCVT
 
 
@@ -35,5 +36,7 @@ def test_settings_are_the_sampler_settings_of_a_controller_that_samples():
 def test_make_controller_builds_each_kind():
     assert isinstance(make_controller("clairvoyant"), ClairvoyantCVT)
     assert isinstance(make_controller("dcvt"), DecentralizedCVT)
-    with pytest.raises(ValueError, match=r"^--controller: expected one of clairvoyant, dcvt, lpac, madp, madp_central, got 'lqr'$"):
+    with pytest.raises(SettingError, match=r"^controller: expected one of clairvoyant, dcvt, lpac, madp, madp_central, "
+                                           r"got 'lqr'$") as e:
         make_controller("lqr")
+    assert e.value.setting == "controller"

@@ -9,6 +9,7 @@ from typing import Callable, Iterator, Optional
 
 import numpy as np
 
+from madp.errors import SettingError
 from madp.io.lock import LOCK_FILENAME, locked_dir
 from madp.io.owned import clear_owned, foreign_files
 
@@ -134,7 +135,7 @@ def convert_dataset(root: os.PathLike | str, fmt: str, out: os.PathLike | str, o
     root, out = Path(root), Path(out)
     m = open_dataset(root)
     if fmt not in ("mcap", "parquet"):
-        raise DataError.at("--to", f"expected mcap or parquet, got {fmt!r}")
+        raise SettingError("to", f"expected mcap or parquet, got {fmt!r}")
     if out.resolve() == root.resolve():
         raise DataError.at(out, "must differ from the source dataset directory")
     def target(s: ShardInfo) -> str:

@@ -32,6 +32,8 @@ from typing import Iterable, Iterator, Optional, Sequence
 
 import numpy as np
 
+from madp.errors import MadpError
+
 #: Version of the sample layout and of its encodings. Bump on any incompatible change.
 SCHEMA_VERSION = 1
 
@@ -57,7 +59,7 @@ INDEX_DTYPE = np.dtype("<i8")
 MAX_INDEX = 2**63 - 1
 
 
-class DataError(Exception):
+class DataError(MadpError):
     """A dataset file or in-memory array is not what the schema expects.
 
     The message is always one line: ``"<file or field>: <what was expected>[, got <what>]"``.

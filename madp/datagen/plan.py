@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from madp.errors import SettingError
 from madp.sim import SimParams
 
 SPLITS = ("train", "val", "test")
@@ -48,21 +49,21 @@ class DatagenConfig:
 
     def __post_init__(self) -> None:
         if self.num_samples < 1:
-            raise ValueError(f"--n: expected a positive number of samples, got {self.num_samples}")
+            raise SettingError("num_samples", f"expected a positive number of samples, got {self.num_samples}")
         if self.format not in ("mcap", "parquet"):
-            raise ValueError(f"--format: expected mcap or parquet, got {self.format!r}")
+            raise SettingError("format", f"expected mcap or parquet, got {self.format!r}")
         if not 0 <= self.seed < 2**32:
-            raise ValueError(f"--seed: expected an integer in [0, 2^32), got {self.seed}")
+            raise SettingError("seed", f"expected an integer in [0, 2^32), got {self.seed}")
         if self.samples_per_shard < 1 or self.record_every < 1 or self.max_steps < 1:
-            raise ValueError("samples_per_shard, record_every and max_steps must be positive")
+            raise SettingError("samples_per_shard", message="samples_per_shard, record_every and max_steps must be positive")
         shards = max(-(-n // self.samples_per_shard) for n in split_sizes(self.num_samples).values())
         if shards > MAX_SHARDS_PER_SPLIT:  # checked before a plan of that size is ever made
-            raise ValueError(f"--n: {self.num_samples} samples make {shards} shards of {self.samples_per_shard} in one split, "
+            raise SettingError("num_samples", f"{self.num_samples} samples make {shards} shards of {self.samples_per_shard} in one split, "
                              f"more than the {MAX_SHARDS_PER_SPLIT} a dataset's episode ids can number; "
                              "lower --n or raise --samples-per-shard")
-        self.params.check_fits("--num-robots/--num-features/--world-size")
+        self.params.check_fits("num_robots/num_features/world_size")
         if self.policy and not 0.0 <= float(self.policy.get("beta", -1)) <= 1.0:
-            raise ValueError(f"--beta: expected a probability in [0, 1], got {self.policy.get('beta')}")
+            raise SettingError("beta", f"expected a probability in [0, 1], got {self.policy.get('beta')}")
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from madp.data_schema.manifest import sha256_file
+from madp.errors import InputError, SettingError
 from madp.sim import CoverageEnv
 
 #: What of the policy's dataset a relabelled dataset records as its parent.
@@ -23,11 +24,16 @@ PARENT_KEYS = ("root", "num_samples", "created_by", "more")
 _verified: set = set()  # (path, sha256) of the policy files checked in this process
 
 
-def learner_settings(policy: str | Path, beta: float) -> dict:
+def learner_settings(policy: str | Path | None, beta: float = 0.0) -> dict:
     """The ``policy`` setting of a relabelling plan: the policy file's path, checksum and kind, the
-    probability ``beta`` that a step executes the expert's action, and the policy's parent dataset."""
+    probability ``beta`` that a step executes the expert's action, and the policy's parent dataset;
+    ``{}`` (the expert drives) without a policy, where a ``beta`` is refused."""
     from madp.policies.checkpoint import load_policy
 
+    if policy is None:
+        if beta:
+            raise SettingError("beta", "only meaningful with a policy")
+        return {}
     policy = Path(policy)
     _, meta = load_policy(policy)
     return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
@@ -47,7 +53,7 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
     key = (policy["path"], policy["sha256"])
     if key not in _verified:
         if sha256_file(policy["path"]) != policy["sha256"]:
-            raise ValueError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
+            raise InputError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
         _verified.add(key)
     learner = make_controller(policy["kind"], policy["path"], seed=seed)  # MADP decentralized or LPAC-K3
     coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])

@@ -42,10 +42,11 @@ from madp.data_schema import (
 )
 from madp.data_schema.manifest import MANIFEST_FILENAME, dumps_canonical
 from madp.data_schema.shard_io import check_shard
+from madp.errors import SettingError
 from madp.io.atomic import remove_temps, temp_path, write_text_atomic
 from madp.io.lock import LOCK_FILENAME, locked_dir
 from madp.io.owned import clear_owned, foreign_files
-from madp.io.ray_backend import ray_imap_unordered
+from madp.io.ray_backend import import_ray, ray_imap_unordered
 from madp.io.workers import die_with_parent
 
 from .episodes import shard_episodes
@@ -193,6 +194,17 @@ def build_manifest(cfg: DatagenConfig, records: dict[str, ShardRecord], tasks: l
                     action_stats=acc.result(), created_by=cfg.command())
 
 
+def parse_shards(spec: Optional[str]) -> Optional[tuple[int, int]]:
+    """``"I:J"`` -> ``(I, J)``, the part of the plan to run (``--shards``); None stays None."""
+    if spec is None:
+        return None
+    try:
+        i, j = (int(v) for v in spec.split(":"))
+    except ValueError:
+        raise SettingError("shards", f"expected I:J (two integers), got {spec!r}") from None
+    return i, j
+
+
 def run_datagen(
     cfg: DatagenConfig,
     root: Path,
@@ -208,11 +220,13 @@ def run_datagen(
     or a cluster address: :mod:`madp.io.ray_backend`); ``root`` must then be a path every node sees.
     Returns the manifest once every task of the plan is done (None for an incomplete part).
     """
+    if ray is not None:
+        import_ray()  # a one-line error now when Ray is not installed
     root = Path(root)
     plan = make_plan(cfg)
     lo, hi = shards if shards is not None else (0, len(plan))
     if not (0 <= lo <= hi <= len(plan)):
-        raise ValueError(f"--shards: expected I:J within 0:{len(plan)}, got {lo}:{hi}")
+        raise SettingError("shards", f"expected I:J within 0:{len(plan)}, got {lo}:{hi}")
     with locked_dir(root):
         return _run_locked(cfg, root, plan, lo, hi, workers, overwrite, progress, ray)
 

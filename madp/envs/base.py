@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from madp.errors import SettingError
 from madp.render import FrameRenderer
 from madp.sim import CoverageEnv, Scenario, SimParams
 
@@ -55,9 +56,9 @@ class CoverageWorld:
                    render_size: int) -> int:
         """Check and store the constructor's arguments; returns the number of robots."""
         if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(f"render_mode: expected one of {RENDER_MODES} or None, got {render_mode!r}")
+            raise SettingError("render_mode", f"expected one of {RENDER_MODES} or None, got {render_mode!r}")
         if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+            raise SettingError("max_steps", message=f"max_steps must be >= 1, got {max_steps}")
         self.scenario = resolve_scenario(scenario)
         self.params = self.scenario.params if self.scenario is not None else (params or SimParams())
         self.max_steps, self.render_mode, self.render_size = int(max_steps), render_mode, int(render_size)

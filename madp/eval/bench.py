@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from madp.errors import SettingError
 from madp.models.bench import bench_infer
 
 from madp.policies import load, shipped_checkpoint
@@ -39,20 +40,20 @@ SE_TARGET = 0.02
 
 def parse_grid(text: str) -> dict[str, tuple[int, ...]]:
     """``"dpm++:5,10,20;ddim:10,20,50"`` -> ``{"dpm++": (5, 10, 20), "ddim": (10, 20, 50)}`` (DDIM-50 is
-    always added). One-line ``ValueError`` on anything else."""
+    always added). A one-line :class:`madp.errors.SettingError` on anything else."""
     from madp.models.samplers import SAMPLERS
 
     grid: dict[str, tuple[int, ...]] = {}
     for part in filter(None, (p.strip() for p in text.split(";"))):
         name, _, values = part.partition(":")
         if name not in SAMPLERS or not values:
-            raise ValueError(f"--grid: expected 'sampler:S,S,...' with sampler in {list(SAMPLERS)}, got {part!r}")
+            raise SettingError("grid", f"expected 'sampler:S,S,...' with sampler in {list(SAMPLERS)}, got {part!r}")
         try:
             steps = tuple(sorted({int(v) for v in values.split(",")}))
         except ValueError:
-            raise ValueError(f"--grid: steps must be integers, got {values!r}") from None
+            raise SettingError("grid", f"steps must be integers, got {values!r}") from None
         if min(steps) < 1:
-            raise ValueError(f"--grid: steps must be >= 1, got {values!r}")
+            raise SettingError("grid", f"steps must be >= 1, got {values!r}")
         grid[name] = steps
     grid.setdefault(BASELINE[0], ())
     grid[BASELINE[0]] = tuple(sorted(set(grid[BASELINE[0]]) | {BASELINE[1]}))

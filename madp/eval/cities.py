@@ -19,7 +19,7 @@ traffic signal inside it. This module turns a file of signal locations into such
    by (mu_x, mu_y), so the scenario depends only on the set of signals, not on the file's row order.
 5. **Scenario** (:func:`city_scenario`): those features and N robots launched uniformly.
 
-All input errors raise :class:`ValueError` with a single line naming the file and what was expected.
+All input errors raise :class:`madp.errors.InputError` with a single line naming the file and what was expected.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from madp.errors import InputError
 from madp.sim import Scenario, SimParams
 
 from .geometry import WORLD_SIDE_M, find_best_square, project_local, unproject_local
@@ -80,7 +81,7 @@ def load_city_dir(directory: str | Path) -> list[str]:
     """
     directory = Path(directory)
     if not directory.is_dir():
-        raise ValueError(f"{directory}: not a directory (expected a folder of city signal files)")
+        raise InputError(f"{directory}: not a directory (expected a folder of city signal files)")
     files = [
         p
         for p in directory.iterdir()
@@ -94,9 +95,9 @@ def _check_range(path: Path, label: str, rng: tuple[float, float], positive: boo
     try:
         lo, hi = (float(v) for v in rng)
     except (TypeError, ValueError):
-        raise ValueError(f"{path}: {label} must be a (low, high) pair of numbers, got {rng!r}") from None
+        raise InputError(f"{path}: {label} must be a (low, high) pair of numbers, got {rng!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi) or (positive and lo <= 0):
-        raise ValueError(f"{path}: {label} must satisfy {'0 < ' if positive else ''}low <= high, got {rng!r}")
+        raise InputError(f"{path}: {label} must satisfy {'0 < ' if positive else ''}low <= high, got {rng!r}")
     return lo, hi
 
 
@@ -131,7 +132,7 @@ def import_city(
     sig_lo, sig_hi = _check_range(path, "sigma_range", sigma_range, positive=True)
     pk_lo, pk_hi = _check_range(path, "peak_range", peak_range, positive=True)
     if not (isinstance(side_m, (int, float)) and math.isfinite(side_m) and side_m > 0):
-        raise ValueError(f"{path}: side_m must be a positive number, got {side_m!r}")
+        raise InputError(f"{path}: side_m must be a positive number, got {side_m!r}")
     side = float(side_m)
     latlon = read_signals(path)
     lat, lon = latlon[:, 0], latlon[:, 1]

@@ -31,9 +31,10 @@ from madp.data_schema.manifest import sha256_file
 from madp.io.atomic import atomic_path, remove_temps, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
-from madp.io.ray_backend import ray_imap_unordered
+from madp.io.ray_backend import import_ray, ray_imap_unordered
 from madp.io.workers import die_with_parent
 from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, make_controller
+from madp.errors import InputError, SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
 from madp.sim import CoverageEnv
 from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, act_alone, run
@@ -64,6 +65,10 @@ class EvalConfig:
     cities: str | None = None
     record_every: int = 5
     record_samples: int = 4
+
+    def __post_init__(self) -> None:
+        if self.ray is not None:
+            import_ray()  # a one-line error now when Ray is not installed
 
     @property
     def sampling(self):
@@ -230,7 +235,7 @@ def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit:
 
     unknown = [c for c in requested if c not in NAMES]
     if unknown:
-        raise ValueError(f"--controllers: unknown {unknown}; expected some of {list(NAMES)}")
+        raise SettingError("controllers", f"unknown {unknown}; expected some of {list(NAMES)}")
     paths = {k: getattr(cfg, k) for k in CHECKPOINT_KINDS}  # EvalConfig has a field per checkpoint kind
     keep = []
     for c in requested:
@@ -239,7 +244,8 @@ def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit:
             path = paths[kind] or (str(shipped_checkpoint(kind)) if shipped_checkpoint(kind) else None)
             if path is None:
                 if explicit:
-                    raise ValueError(f"--controllers {c}: no --{kind} checkpoint given and none ships with this install")
+                    raise SettingError("controllers", message=f"controllers {c}: no {kind} checkpoint given and none ships "
+                                                              "with this install")
                 continue
             load(path, kind)  # a missing or incompatible checkpoint is a one-line error now
             paths[kind] = path
@@ -269,9 +275,9 @@ def _read_config(cfg_file: Path) -> dict | None:
     except FileNotFoundError:
         return None
     except (OSError, ValueError):
-        raise ValueError(f"{cfg_file}: unreadable; pass --overwrite to start the suite afresh") from None
+        raise InputError(f"{cfg_file}: unreadable; pass --overwrite to start the suite afresh") from None
     if not isinstance(old, dict):
-        raise ValueError(f"{cfg_file}: expected a JSON object; pass --overwrite to start the suite afresh")
+        raise InputError(f"{cfg_file}: expected a JSON object; pass --overwrite to start the suite afresh")
     return old
 
 
@@ -307,7 +313,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
         if changed or retrained:
             if not overwrite:
                 what = ", ".join(sorted(changed | {f"{k} checkpoint" for k in retrained}))
-                raise ValueError(f"{suite_dir}: holds an evaluation with other settings ({what}); "
+                raise InputError(f"{suite_dir}: holds an evaluation with other settings ({what}); "
                                  "pass --overwrite or another --out")
             if changed:
                 clear_owned(suite_dir, owned_files(suite_dir))

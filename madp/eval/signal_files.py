@@ -13,7 +13,7 @@ signal per location). **Tag filter**: if at least one point of a GeoJSON / Overp
 tagged ``highway=traffic_signals`` are kept; a file without any ``highway`` tags (e.g. ``out skel``)
 is taken as a list of signals.
 
-Every input error raises :class:`ValueError` with a single line naming the file and what was expected.
+Every input error raises :class:`madp.errors.InputError` with a single line naming the file and what was expected.
 """
 
 from __future__ import annotations
@@ -26,6 +26,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+from madp.errors import InputError
 
 __all__ = ["SUPPORTED_SUFFIXES", "read_signals", "read_signals_csv", "read_signals_geojson", "read_signals_overpass",
            "strip_suffixes"]
@@ -53,30 +55,30 @@ def strip_suffixes(path: Path) -> tuple[str, str, bool]:
 def _read_text(path: Path) -> str:
     """Read a (possibly gzipped) UTF-8 text file, mapping I/O errors to one-line ValueErrors."""
     if not path.exists():
-        raise ValueError(f"{path}: file not found (expected a .csv, .geojson or .json file of signals)")
+        raise InputError(f"{path}: file not found (expected a .csv, .geojson or .json file of signals)")
     if not path.is_file():
-        raise ValueError(f"{path}: not a regular file (expected a .csv, .geojson or .json file of signals)")
+        raise InputError(f"{path}: not a regular file (expected a .csv, .geojson or .json file of signals)")
     try:
         raw = path.read_bytes()
         if path.name.lower().endswith(".gz"):
             raw = gzip.decompress(raw)
         return raw.decode("utf-8-sig")
     except (OSError, EOFError, gzip.BadGzipFile) as exc:
-        raise ValueError(f"{path}: cannot read the file ({exc.__class__.__name__}: {exc})") from None
+        raise InputError(f"{path}: cannot read the file ({exc.__class__.__name__}: {exc})") from None
     except UnicodeDecodeError:
-        raise ValueError(f"{path}: not UTF-8 text (expected a .csv, .geojson or .json file of signals)") from None
+        raise InputError(f"{path}: not UTF-8 text (expected a .csv, .geojson or .json file of signals)") from None
 
 
 def _as_float(value, path: Path, where: str) -> float:
     """Parse a coordinate value (number or numeric string) or raise a one-line ValueError."""
     if isinstance(value, bool) or value is None:
-        raise ValueError(f"{path}: {where}: expected a number, got {value!r}")
+        raise InputError(f"{path}: {where}: expected a number, got {value!r}")
     try:
         return float(value)
     except OverflowError:  # an integer beyond float range: out of range below, like inf
         return math.inf
     except (TypeError, ValueError):
-        raise ValueError(f"{path}: {where}: expected a number, got {str(value)[:40]!r}") from None
+        raise InputError(f"{path}: {where}: expected a number, got {str(value)[:40]!r}") from None
 
 
 def read_signals_csv(path: str | Path, text: str | None = None) -> np.ndarray:
@@ -95,7 +97,7 @@ def read_signals_csv(path: str | Path, text: str | None = None) -> np.ndarray:
     try:
         return _parse_csv(path, csv.reader(io.StringIO(text, newline="")))
     except csv.Error as e:
-        raise ValueError(f"{path}: malformed CSV ({e})") from None
+        raise InputError(f"{path}: malformed CSV ({e})") from None
 
 
 def _parse_csv(path: Path, rows) -> np.ndarray:
@@ -104,12 +106,12 @@ def _parse_csv(path: Path, rows) -> np.ndarray:
         if any(cell.strip() for cell in header):
             break
     else:
-        raise ValueError(f"{path}: empty CSV (expected a header 'lat,lon' and one signal per row)")
+        raise InputError(f"{path}: empty CSV (expected a header 'lat,lon' and one signal per row)")
     names = [cell.strip().lower() for cell in header]
     lat_col = next((names.index(c) for c in _LAT_NAMES if c in names), None)
     lon_col = next((names.index(c) for c in _LON_NAMES if c in names), None)
     if lat_col is None or lon_col is None:
-        raise ValueError(
+        raise InputError(
             f"{path}: CSV header {','.join(names)!r} has no lat/lon columns (expected a header like 'lat,lon')"
         )
     out = []
@@ -119,7 +121,7 @@ def _parse_csv(path: Path, rows) -> np.ndarray:
             continue
         line = rows.line_num
         if len(row) < need:
-            raise ValueError(f"{path}: line {line}: expected {need} columns, got {len(row)}")
+            raise InputError(f"{path}: line {line}: expected {need} columns, got {len(row)}")
         out.append(
             (
                 _as_float(row[lat_col].strip(), path, f"line {line} lat"),
@@ -155,7 +157,7 @@ def _load_json(path: Path, text: str | None):
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+        raise InputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
 
 
 def read_signals_geojson(path: str | Path, text: str | None = None) -> np.ndarray:
@@ -178,7 +180,7 @@ def _geojson_points(path: Path, doc) -> np.ndarray:
 
     def position(coords, where: str) -> tuple[float, float]:
         if not isinstance(coords, (list, tuple)) or len(coords) < 2:
-            raise ValueError(f"{path}: {where}: expected a position [lon, lat], got {coords!r}")
+            raise InputError(f"{path}: {where}: expected a position [lon, lat], got {coords!r}")
         return _as_float(coords[1], path, f"{where} lat"), _as_float(coords[0], path, f"{where} lon")
 
     def visit(geom, props, where: str) -> None:
@@ -191,7 +193,7 @@ def _geojson_points(path: Path, doc) -> np.ndarray:
         elif kind == "MultiPoint":
             coords = geom.get("coordinates")
             if not isinstance(coords, list):
-                raise ValueError(f"{path}: {where}: expected a list of positions, got {coords!r}")
+                raise InputError(f"{path}: {where}: expected a list of positions, got {coords!r}")
             for k, c in enumerate(coords):
                 points.append(position(c, f"{where} point {k}"))
                 tags.append(_highway_tag(props))
@@ -200,12 +202,12 @@ def _geojson_points(path: Path, doc) -> np.ndarray:
                 visit(g, props, f"{where} geometry {k}")
 
     if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
-        raise ValueError(f"{path}: expected a GeoJSON object with a 'type' (e.g. a FeatureCollection of Points)")
+        raise InputError(f"{path}: expected a GeoJSON object with a 'type' (e.g. a FeatureCollection of Points)")
     kind = doc["type"]
     if kind == "FeatureCollection":
         features = doc.get("features")
         if not isinstance(features, list):
-            raise ValueError(f"{path}: expected a 'features' list in the GeoJSON FeatureCollection")
+            raise InputError(f"{path}: expected a 'features' list in the GeoJSON FeatureCollection")
         for k, feat in enumerate(features):
             if isinstance(feat, dict):
                 visit(feat.get("geometry"), feat.get("properties"), f"feature {k}")
@@ -232,7 +234,7 @@ def read_signals_overpass(path: str | Path, text: str | None = None) -> np.ndarr
 def _overpass_points(path: Path, doc) -> np.ndarray:
     """Points of a parsed Overpass JSON document (see :func:`read_signals_overpass`)."""
     if not isinstance(doc, dict) or not isinstance(doc.get("elements"), list):
-        raise ValueError(f"{path}: expected an Overpass JSON object with an 'elements' list")
+        raise InputError(f"{path}: expected an Overpass JSON object with an 'elements' list")
     points: list[tuple[float, float]] = []
     tags: list[object] = []
     for k, el in enumerate(doc["elements"]):
@@ -260,7 +262,7 @@ def read_signals(path: str | Path) -> np.ndarray:
     path = Path(path)
     _, suffix, _ = strip_suffixes(path)
     if suffix not in SUPPORTED_SUFFIXES:
-        raise ValueError(
+        raise InputError(
             f"{path}: unsupported file type {suffix or '(none)'!r} "
             f"(expected {', '.join(SUPPORTED_SUFFIXES)}, optionally gzipped as .gz)"
         )
@@ -274,23 +276,23 @@ def read_signals(path: str | Path) -> np.ndarray:
         elif isinstance(doc, dict) and isinstance(doc.get("type"), str):
             latlon = _geojson_points(path, doc)
         else:
-            raise ValueError(
+            raise InputError(
                 f"{path}: unrecognised JSON (expected a GeoJSON FeatureCollection of Points "
                 "or an Overpass JSON with an 'elements' list)"
             )
     if latlon.shape[0] == 0:
-        raise ValueError(f"{path}: no traffic signals found (expected at least one point with lat/lon)")
+        raise InputError(f"{path}: no traffic signals found (expected at least one point with lat/lon)")
     bad = ~np.isfinite(latlon).all(axis=1)
     if bad.any():
         k = int(np.argmax(bad))
-        raise ValueError(
+        raise InputError(
             f"{path}: {int(bad.sum())} non-finite coordinate(s), first (lat, lon) = "
             f"({latlon[k, 0]}, {latlon[k, 1]}) (expected finite WGS84 degrees)"
         )
     bad = (np.abs(latlon[:, 0]) > 90.0) | (np.abs(latlon[:, 1]) > 180.0)
     if bad.any():
         k = int(np.argmax(bad))
-        raise ValueError(
+        raise InputError(
             f"{path}: {int(bad.sum())} coordinate(s) out of range, first (lat, lon) = "
             f"({latlon[k, 0]}, {latlon[k, 1]}) (expected |lat| <= 90 and |lon| <= 180 degrees)"
         )

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from madp.errors import InputError, SettingError
 from madp.sim import Scenario, SimParams
 
 EVAL_SEED_BIT = 1 << 62
@@ -75,10 +76,17 @@ class EnvSpec:
         return city_scenario(self.city_file, self.seed, self.params)[0]
 
 
+def suite_names(suite: str) -> list[str]:
+    """The suites ``suite`` names: itself, or every one for ``"all"``."""
+    if suite != "all" and suite not in SUITES:
+        raise SettingError("suite", f"expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    return list(SUITES) if suite == "all" else [suite]
+
+
 def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = None) -> list[EnvSpec]:
     """The environments of a suite, in a fixed order."""
     if num_envs < 1:
-        raise ValueError(f"--num-envs: expected a positive number, got {num_envs}")
+        raise SettingError("num_envs", f"expected a positive number, got {num_envs}")
     base = SimParams()
     if suite == "uniform":
         return [EnvSpec(suite, "uniform", i, base) for i in range(num_envs)]
@@ -96,6 +104,6 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
         directory = Path(cities_dir) if cities_dir else default_cities_dir()
         files = load_city_dir(directory)
         if not files:
-            raise ValueError(f"{directory}: no city files (.csv, .geojson, .json) found")
+            raise InputError(f"{directory}: no city files (.csv, .geojson, .json) found")
         return [EnvSpec(suite, Path(f).name.split(".")[0], 0, base, city_file=str(f)) for f in files[:num_envs]]
-    raise ValueError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    raise SettingError("suite", f"expected one of {list(SUITES) + ['all']}, got {suite!r}")

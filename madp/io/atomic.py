@@ -8,6 +8,7 @@ match :data:`TMP_GLOB`; a job removes them while it holds the directory's lock.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from contextlib import contextmanager
@@ -77,6 +78,11 @@ def write_text_atomic(path: str | os.PathLike, text: str, fsync: bool = True) ->
         if fsync:
             os.fsync(f.fileno())
     return path
+
+
+def write_json_atomic(path: str | os.PathLike, obj: object) -> Path:
+    """``obj`` as JSON (indent 1, trailing newline) at ``path``, atomically (:func:`write_text_atomic`)."""
+    return write_text_atomic(path, json.dumps(obj, indent=1) + "\n")
 
 
 def remove_temps(root: str | os.PathLike) -> int:

@@ -20,13 +20,15 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Optional
 
+from madp.errors import MadpError
+
 #: Name of the lock file inside a locked directory. Never part of a dataset, run or suite.
 LOCK_FILENAME = ".madp.lock"
 #: How long a job waits for the orphaned children of a dead holder to exit.
 ORPHAN_WAIT_S = 15.0
 
 
-class DirectoryLocked(Exception):
+class DirectoryLocked(MadpError):
     """Another madp job is writing the directory (a one-line message naming its pid)."""
 
 

@@ -13,11 +13,13 @@ import os
 from pathlib import Path
 from typing import Iterable
 
+from madp.errors import MadpError
+
 from .atomic import is_temp
 from .lock import LOCK_FILENAME
 
 
-class NotOwned(Exception):
+class NotOwned(MadpError):
     """``--overwrite`` met a file madp did not write (one-line message naming it)."""
 
 

@@ -27,6 +27,8 @@ import logging
 from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator, Optional
 
+from madp.errors import SettingError
+
 #: ``--ray`` given without an address: start a Ray instance on this machine for the run.
 RAY_LOCAL = "local"
 #: How many times Ray re-runs a task whose worker died.
@@ -35,8 +37,8 @@ MAX_RETRIES = 3
 THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-class RayUnavailable(Exception):
-    """``--ray`` without Ray installed (a one-line message saying what to install)."""
+class RayUnavailable(SettingError):
+    """Ray asked for (setting ``ray``, ``--ray``) but not installed (a one-line message saying what to install)."""
 
 
 def import_ray():
@@ -44,7 +46,7 @@ def import_ray():
     try:
         import ray
     except ImportError:
-        raise RayUnavailable('--ray: Ray is not installed; pip install "madp[ray]"') from None
+        raise RayUnavailable("ray", 'Ray is not installed; pip install "madp[ray]"') from None
     return ray
 
 

@@ -36,6 +36,8 @@ import math
 import torch
 from torch import Tensor
 
+from madp.errors import SettingError
+
 from .diffusion import DDPMSchedule
 
 __all__ = ["SAMPLERS", "DEFAULT_SAMPLER", "DEFAULT_SAMPLING_STEPS", "DDIMSampler", "DPMSolverMultistepSampler",
@@ -49,15 +51,16 @@ DEFAULT_SAMPLING_STEPS = 3
 
 
 def check_sampler(name: str, num_steps: int, eta: float) -> None:
-    """One-line ``ValueError`` for an unknown sampler, S < 1, η outside [0, 1] or η > 0 with DPM-Solver++."""
+    """A one-line :class:`madp.errors.SettingError` for an unknown sampler, S < 1, η outside [0, 1] or
+    η > 0 with DPM-Solver++."""
     if name not in SAMPLERS:
-        raise ValueError(f"--sampler: expected one of {list(SAMPLERS)}, got {name!r}")
+        raise SettingError("sampler", f"expected one of {list(SAMPLERS)}, got {name!r}")
     if int(num_steps) < 1:
-        raise ValueError(f"--sampling-steps: expected >= 1, got {num_steps}")
+        raise SettingError("sampling_steps", f"expected >= 1, got {num_steps}")
     if not 0.0 <= float(eta) <= 1.0:
-        raise ValueError(f"--eta: expected a value in [0, 1], got {eta}")
+        raise SettingError("eta", f"expected a value in [0, 1], got {eta}")
     if name == "dpm++" and eta > 0:
-        raise ValueError(f"--eta {eta}: DPM-Solver++(2M) is deterministic; η > 0 needs --sampler ddim")
+        raise SettingError("eta", message=f"eta {eta}: DPM-Solver++(2M) is deterministic; η > 0 needs the ddim sampler")
 
 
 class DDIMSampler:

@@ -4,7 +4,7 @@ code, and the checkpoints shipped with madp (``madp/checkpoints/``).
 A policy file is self-describing: its metadata holds the kind (``madp`` / ``lpac``), the model config,
 the action statistics, the dataset and the step, so acting needs nothing else. Loading never trusts
 a file: a truncated, empty or garbled file, metadata of another kind, or weights of another model is
-a one-line ``ValueError`` naming the file. Writing checkpoints is training's job; training reads
+a one-line :class:`madp.errors.InputError` naming the file. Writing checkpoints is training's job; training reads
 policy files through this module, never the reverse.
 """
 
@@ -19,6 +19,7 @@ from safetensors import safe_open
 from safetensors.torch import load_file
 from torch import nn
 
+from madp.errors import InputError
 from madp.models import MADP, LPACConfig, MADPConfig
 
 SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
@@ -35,7 +36,7 @@ def load(path: str | Path, expect: str, device: str = "cpu"):
     model, meta = load_policy(path, device)
     torch.set_flush_denormal(True)  # subnormal weights (training flushes them too) would slow every step
     if meta["kind"] != expect:
-        raise ValueError(f"{path}: is a {meta['kind']} checkpoint, expected {expect}")
+        raise InputError(f"{path}: is a {meta['kind']} checkpoint, expected {expect}")
     return model, meta
 
 
@@ -48,11 +49,11 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
         with safe_open(str(path), framework="pt") as f:
             metadata = dict(f.metadata() or {})
     except Exception as e:  # safetensors raises its own error types for truncated/garbled files
-        raise ValueError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+        raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
     state = read_weights(path, device)
     kind = metadata.get("kind")
     if kind not in ("madp", "lpac") or "config" not in metadata:
-        raise ValueError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")
+        raise InputError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")
     try:
         config = json.loads(metadata["config"])
         if kind == "madp":
@@ -63,7 +64,7 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
             model = LPAC(LPACConfig.from_dict(config))
         meta = {k: json.loads(v) for k, v in metadata.items() if k not in ("kind", "config")}
     except (ValueError, TypeError, KeyError, AttributeError) as e:
-        raise ValueError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
+        raise InputError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
     load_weights(model, state, path, f"the {kind} config it carries")
     meta["kind"], meta["config"] = kind, config
     return model.to(device).eval(), meta
@@ -74,7 +75,7 @@ def read_weights(path: Path, device: str | torch.device = "cpu") -> dict:
     try:
         return load_file(str(path), device=str(device))
     except Exception as e:  # truncated, empty or garbled: safetensors' own error types
-        raise ValueError(f"{path}: not a readable safetensors file ({type(e).__name__}); the checkpoint is damaged") from None
+        raise InputError(f"{path}: not a readable safetensors file ({type(e).__name__}); the checkpoint is damaged") from None
 
 
 def load_weights(model: nn.Module, state: dict, path: Path, what: str = "this run's model") -> None:
@@ -86,6 +87,6 @@ def load_weights(model: nn.Module, state: dict, path: Path, what: str = "this ru
     if missing or unexpected or shape:
         example = (f"'{shape[0]}' is {list(state[shape[0]].shape)}, expected {list(own[shape[0]].shape)}" if shape
                    else f"'{(missing or unexpected)[0]}' is {'missing' if missing else 'unexpected'}")
-        raise ValueError(f"{path}: weights of another model, not {what} ({len(missing)} missing, {len(unexpected)} "
+        raise InputError(f"{path}: weights of another model, not {what} ({len(missing)} missing, {len(unexpected)} "
                          f"unexpected, {len(shape)} of another shape; e.g. {example})")
     model.load_state_dict(state)

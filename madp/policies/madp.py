@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 
 from .swarm import clip_speed, swarm_tensors
@@ -43,6 +44,12 @@ class SamplingSettings:
     def __post_init__(self) -> None:
         check_sampler(self.sampler, self.sampling_steps, self.eta)
 
+    @classmethod
+    def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
+           fixed_noise: bool = False) -> "SamplingSettings":
+        """The settings with ``None`` standing for the default sampler and S."""
+        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise)
+
     def as_dict(self) -> dict:
         """What names the sampling in tables, recordings and a suite's config."""
         return asdict(self)
@@ -59,8 +66,11 @@ class MADPPolicy:
     def __init__(self, model, mode: str = "decentralized", sampling: SamplingSettings | None = None, seed: int = 0,
                  device: str = "cpu"):
         if mode not in ("decentralized", "centralized"):
-            raise ValueError(f"--madp-mode: expected decentralized or centralized, got {mode!r}")
+            raise SettingError("mode", f"expected decentralized or centralized, got {mode!r}")
         self.sampling = sampling = sampling or SamplingSettings()
+        if sampling.sampling_steps > model.schedule.num_train_steps:
+            raise SettingError("sampling_steps", f"expected at most {model.schedule.num_train_steps} (the model's "
+                               f"diffusion steps K), got {sampling.sampling_steps}")
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
         self.sampler, self.fixed_noise = sampling.sampler, bool(sampling.fixed_noise)
         self._fixed: dict[int, torch.Tensor] = {}

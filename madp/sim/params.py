@@ -7,6 +7,8 @@ import numbers
 import os
 from dataclasses import asdict, dataclass, fields
 
+from madp.errors import SettingError
+
 
 def physical_memory_bytes() -> int | None:
     """This machine's physical memory, or None where the OS does not say."""
@@ -52,15 +54,15 @@ class SimParams:
             v = getattr(self, f.name)
             if f.name in ("sigma_range_m", "peak_range"):
                 if not isinstance(v, (tuple, list)) or len(v) != 2 or not all(_is_number(x) for x in v):
-                    raise ValueError(f"{f.name} must be a (low, high) pair of finite numbers, got {v!r}")
+                    raise SettingError(f.name, message=f"{f.name} must be a (low, high) pair of finite numbers, got {v!r}")
             elif f.type in ("int", int):
                 if not isinstance(v, numbers.Integral) or isinstance(v, bool):
-                    raise ValueError(f"{f.name} must be an integer, got {v!r}")
+                    raise SettingError(f.name, message=f"{f.name} must be an integer, got {v!r}")
                 object.__setattr__(self, f.name, int(v))  # numpy integers too
             elif f.type in ("float", float) and not _is_number(v):
-                raise ValueError(f"{f.name} must be a finite number, got {v!r}")
+                raise SettingError(f.name, message=f"{f.name} must be a finite number, got {v!r}")
             elif f.type in ("bool", bool) and not isinstance(v, bool):
-                raise ValueError(f"{f.name} must be true or false, got {v!r}")
+                raise SettingError(f.name, message=f"{f.name} must be true or false, got {v!r}")
         object.__setattr__(self, "sigma_range_m", tuple(float(v) for v in self.sigma_range_m))
         object.__setattr__(self, "peak_range", tuple(float(v) for v in self.peak_range))
         problems = []
@@ -85,7 +87,7 @@ class SimParams:
             if not getattr(self, name) > 0:
                 problems.append(f"{name} must be > 0, got {getattr(self, name)}")
         if problems:
-            raise ValueError("; ".join(problems))
+            raise SettingError(problems[0].split()[0], message="; ".join(problems))  # each names its parameter
 
     def env_bytes(self) -> int:
         """The least memory one environment takes: every robot's zero-padded map (float32), the
@@ -95,10 +97,10 @@ class SimParams:
 
     def check_fits(self, where: str) -> None:
         """Refuse, before anything is allocated, sizes whose environment cannot fit in this machine's
-        memory (``where`` names the flags or file that chose them)."""
+        memory (``where`` names the settings or the file that chose them)."""
         need, have = self.env_bytes(), physical_memory_bytes()
         if have is not None and need > have:
-            raise ValueError(f"{where}: N = {self.num_robots} robots and F = {self.num_features} features on a "
+            raise SettingError(where, message=f"{where}: N = {self.num_robots} robots and F = {self.num_features} features on a "
                              f"{self.world_size} m world need at least {need / 2**30:.1f} GiB for one environment, "
                              f"more than this machine's {have / 2**30:.1f} GiB")
 
@@ -113,5 +115,5 @@ class SimParams:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown}; expected some of {sorted(known)}")
+            raise SettingError("params", message=f"unknown parameter(s) {unknown}; expected some of {sorted(known)}")
         return cls(**d)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from madp.errors import InputError
 from madp.io.atomic import write_text_atomic
 
 from .idf import importance_map, random_features
@@ -30,7 +31,7 @@ from .params import SimParams
 BORDER_EPS_M = 1e-4
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """A scenario file or dict that does not describe a valid scenario (one-line message)."""
 
 

@@ -27,6 +27,7 @@ import torch
 from safetensors.torch import save_file
 from torch import nn
 
+from madp.errors import InputError
 from madp.io.atomic import temp_path
 from madp.policies.checkpoint import load_policy, load_weights, read_weights
 
@@ -99,19 +100,19 @@ def read_state(path: Path, device: str | torch.device = "cpu") -> dict:
     try:
         state = torch.load(path, map_location=device, weights_only=True)
     except pickle.UnpicklingError:  # an object a checkpoint never holds; torch's message is not shown
-        raise ValueError(f"{path}: holds objects other than tensors and plain containers; refused "
+        raise InputError(f"{path}: holds objects other than tensors and plain containers; refused "
                          "(a training state is never executed)") from None
     except Exception as e:  # empty (EOFError), truncated or not a torch.save file at all
-        raise ValueError(f"{path}: not a readable training state ({type(e).__name__}); the checkpoint is damaged") from None
+        raise InputError(f"{path}: not a readable training state ({type(e).__name__}); the checkpoint is damaged") from None
     if not isinstance(state, dict):
-        raise ValueError(f"{path}: expected a dict of training state, got {type(state).__name__}")
+        raise InputError(f"{path}: expected a dict of training state, got {type(state).__name__}")
     for key, kind in STATE_KEYS.items():
         if key not in state:
-            raise ValueError(f"{path}: training state lacks '{key}'")
+            raise InputError(f"{path}: training state lacks '{key}'")
         if not isinstance(state[key], kind) or isinstance(state[key], bool):
-            raise ValueError(f"{path}: training state '{key}' is a {type(state[key]).__name__}")
+            raise InputError(f"{path}: training state '{key}' is a {type(state[key]).__name__}")
     if min(state["step"], state["epoch"], state["batches_done"], state["bad_epochs"]) < 0:
-        raise ValueError(f"{path}: training state holds negative counters")
+        raise InputError(f"{path}: training state holds negative counters")
     return state
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
+from madp.errors import SettingError
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -52,34 +54,34 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.model not in ("madp", "lpac"):
-            raise ValueError(f"--model: expected madp or lpac, got {self.model!r}")
+            raise SettingError("model", f"expected madp or lpac, got {self.model!r}")
         if self.preset not in ("paper", "cpu"):
-            raise ValueError(f"--preset: expected paper or cpu, got {self.preset!r}")
+            raise SettingError("preset", f"expected paper or cpu, got {self.preset!r}")
         for name in ("epochs", "batch_size", "checkpoint_every", "val_samples", "log_every", "buffer_size", "patience",
                      "grad_accum"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"--{name.replace('_', '-')}: expected a positive integer, got {getattr(self, name)}")
+                raise SettingError(name, f"expected a positive integer, got {getattr(self, name)}")
         for name in ("max_steps_per_epoch", "num_workers", "stop_after_steps", "seed", "warmup_steps"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 0:
-                flag = {"num_workers": "workers"}.get(name, name).replace("_", "-")
-                raise ValueError(f"--{flag}: expected a non-negative integer, got {getattr(self, name)}")
+                raise SettingError(name, f"expected a non-negative integer, got {getattr(self, name)}")
         if not 0.0 <= self.ema_decay < 1.0 or not math.isfinite(self.min_delta) or self.min_delta < 0 \
                 or not self.grad_clip >= 0 or not self.weight_decay >= 0:
-            raise ValueError("ema_decay must lie in [0, 1); min_delta, grad_clip and weight_decay must be >= 0")
+            raise SettingError("ema_decay", message="ema_decay must lie in [0, 1); min_delta, grad_clip and weight_decay "
+                                                     "must be >= 0")
         if self.lr_schedule not in ("constant", "cosine"):
-            raise ValueError(f"lr_schedule: expected constant or cosine, got {self.lr_schedule!r}")
+            raise SettingError("lr_schedule", f"expected constant or cosine, got {self.lr_schedule!r}")
         if self.augment not in ("none", "d4"):
-            raise ValueError(f"--augment: expected none or d4, got {self.augment!r}")
+            raise SettingError("augment", f"expected none or d4, got {self.augment!r}")
         object.__setattr__(self, "more_data", tuple(str(d) for d in self.more_data))
         object.__setattr__(self, "data_weights", tuple(float(w) for w in self.data_weights))
         if self.data_weights and (len(self.data_weights) != 1 + len(self.more_data)
                                   or not all(math.isfinite(w) and w > 0 for w in self.data_weights)):
-            raise ValueError(f"--data-weights: expected {1 + len(self.more_data)} positive numbers (one per --data), "
-                             f"got {list(self.data_weights)}")
+            raise SettingError("data_weights", f"expected {1 + len(self.more_data)} positive numbers (one per dataset), "
+                                               f"got {list(self.data_weights)}")
         if self.edge_weight not in ("binary", "gaussian"):
-            raise ValueError(f"--edge-weight: expected binary or gaussian, got {self.edge_weight!r}")
+            raise SettingError("edge_weight", f"expected binary or gaussian, got {self.edge_weight!r}")
         if not (self.lr > 0 and math.isfinite(self.lr)):
-            raise ValueError(f"--lr: expected a positive learning rate, got {self.lr}")
+            raise SettingError("lr", f"expected a positive learning rate, got {self.lr}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -115,7 +117,7 @@ def parse_weights(text: str) -> tuple[float, ...]:
     try:
         return tuple(float(w) for w in text.split(","))
     except ValueError:
-        raise ValueError(f"--data-weights: expected comma-separated numbers, got {text!r}") from None
+        raise SettingError("data_weights", f"expected comma-separated numbers, got {text!r}") from None
 
 
 def resolve(model: str, preset: str, **overrides) -> TrainConfig:

@@ -34,6 +34,7 @@ import torch
 from torch.utils.data import IterableDataset, default_collate, get_worker_info
 
 from madp.data_schema import Manifest, iter_shard
+from madp.errors import InputError, SettingError
 
 from .augment import AUGMENTATIONS, D4_SIZE, transform_sample
 
@@ -62,8 +63,8 @@ def stream_plan(counts: list[int], seed: int, epoch: int, num_streams: int,
     """(shard indices per stream, samples per stream) for one epoch over ``shards`` (default: all)."""
     shards = list(range(len(counts))) if shards is None else shards
     if len(shards) < num_streams:
-        raise ValueError(f"{len(shards)} shards cannot feed {num_streams} streams (ranks x loader workers); "
-                         "use fewer --workers or ranks")
+        raise SettingError("num_workers", f"{len(shards)} shards cannot feed {num_streams} streams (ranks x loader "
+                           "workers); use fewer workers or ranks")
     order = np.random.default_rng([seed, epoch]).permutation(len(shards))
     streams = [[shards[int(s)] for s in order[i::num_streams]] for i in range(num_streams)]
     per_stream = min(sum(counts[s] for s in st) for st in streams)
@@ -94,7 +95,7 @@ class ShardStream(IterableDataset):
         for r, m in zip(roots, manifests):
             shards = m.splits[split].shards
             if not shards:
-                raise ValueError(f"{r}: split '{split}' has no shards")
+                raise InputError(f"{r}: split '{split}' has no shards")
             self.groups.append(list(range(len(self.paths), len(self.paths) + len(shards))))
             self.paths += [str(r / s.file) for s in shards]
             self.counts += [s.num_samples for s in shards]
@@ -103,7 +104,7 @@ class ShardStream(IterableDataset):
         self.seed, self.batch_size, self.buffer_size = seed, batch_size, buffer_size
         self.rank, self.world_size = rank, world_size
         if augment not in AUGMENTATIONS:
-            raise ValueError(f"--augment: expected one of {list(AUGMENTATIONS)}, got {augment!r}")
+            raise SettingError("augment", f"expected one of {list(AUGMENTATIONS)}, got {augment!r}")
         self.augment = augment
         self.world_size_m = float(manifest.params.get("params", {}).get("world_size", 1024.0))
         self.position = StreamPosition(0, 0)

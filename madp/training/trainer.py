@@ -35,6 +35,7 @@ from torch.utils.data import DataLoader
 
 from madp.data_schema.dataset import check_shards, open_dataset
 from madp.data_schema.manifest import sha256_file
+from madp.errors import InputError, SettingError
 from madp.io.atomic import named, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.workers import die_with_parent
@@ -128,13 +129,13 @@ class Trainer:
         self.manifest = self.manifests[0]
         self.max_robots = max(m.num_robots for m in self.manifests)  # N of the largest swarms trained on
         if self.manifest.action_stats is None:
-            raise ValueError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
+            raise InputError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
         for i, (d, m) in enumerate(zip(cfg.datasets, self.manifests)):
             check_shards(d, m, ("train", "val") if i == 0 else ("train",))  # one read each, before use
         for d, m in zip(cfg.more_data, self.manifests[1:]):
             sim, sim0 = m.params.get("params", {}), self.manifest.params.get("params", {})
             if sim.get("world_size") != sim0.get("world_size"):  # swarm sizes may differ (batched by size)
-                raise ValueError(f"{d}/manifest.json: world_size = {sim.get('world_size')}, but {cfg.data} has "
+                raise InputError(f"{d}/manifest.json: world_size = {sim.get('world_size')}, but {cfg.data} has "
                                  f"{sim0.get('world_size')}; datasets trained together must share it")
         # Weights that stop receiving gradient decay towards zero (L2 weight decay) and turn
         # subnormal; on CPU every op on them then runs ~10x slower (LPAC-K3 fell from 106 to 14
@@ -166,7 +167,7 @@ class Trainer:
         if resume:
             self._load(ckpt)
         elif self.is_main and ckpt.exists():
-            raise ValueError(f"{self.out}: a run is already there; pass --resume to continue it or choose another --out")
+            raise InputError(f"{self.out}: a run is already there; pass --resume to continue it or choose another --out")
         elif self.is_main:
             (self.out / "metrics.jsonl").unlink(missing_ok=True)  # a fresh start: lines of a run killed before its first checkpoint
         if self.is_main:
@@ -182,9 +183,9 @@ class Trainer:
                 continue
             streams = self.world * max(cfg.num_workers, 1)
             _, per = self.train_data._plan(e, streams)
-            raise ValueError(f"--batch-size {cfg.batch_size}: each of the {streams} training stream(s) (ranks x --workers) "
-                             f"gets {per} samples in epoch {e}, less than one batch, so no step would run; "
-                             "use a smaller --batch-size or fewer --workers")
+            raise SettingError("batch_size", message=f"batch_size {cfg.batch_size}: each of the {streams} training "
+                               f"stream(s) (ranks x loader workers) gets {per} samples in epoch {e}, less than one batch, "
+                               "so no step would run; use a smaller batch size or fewer workers")
 
     def _init_from(self, path: Path, load_weights: bool = True) -> None:
         """Warm start: the weights of a policy file of the same model (optimizer and counters fresh)."""
@@ -192,7 +193,7 @@ class Trainer:
 
         model, meta = load_policy(path)
         if meta["kind"] != self.cfg.model or meta["config"] != self.raw.config.to_dict():
-            raise ValueError(f"{path}: --init needs a {self.cfg.model} checkpoint of the {self.cfg.preset} preset "
+            raise InputError(f"{path}: init needs a {self.cfg.model} checkpoint of the {self.cfg.preset} preset "
                              f"(it is a {meta['kind']} with another config)")
         if load_weights:
             self.raw.load_state_dict(model.state_dict())
@@ -270,7 +271,7 @@ class Trainer:
             torch.set_rng_state(state["torch_rng"].cpu())
         except (ValueError, KeyError, TypeError, AttributeError, RuntimeError) as e:
             msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise ValueError(f"{where}: does not fit this run's model and optimizer ({msg})") from None
+            raise InputError(f"{where}: does not fit this run's model and optimizer ({msg})") from None
         self.step, self.epoch = int(state["step"]), int(state["epoch"])
         self.batches_done = int(state["batches_done"])
         self.best_val, self.bad_epochs = float(state["best_val"]), int(state["bad_epochs"])

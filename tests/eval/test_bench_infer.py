@@ -6,6 +6,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from madp.errors import SettingError
 from madp.eval.bench import bench_infer_all, format_table, parse_grid
 from tests.test_reliability_errors import assert_one_line, cli
 
@@ -14,7 +15,7 @@ def test_parse_grid_always_adds_the_ddim50_baseline():
     assert parse_grid("dpm++:10,5;ddim:10") == {"dpm++": (5, 10), "ddim": (10, 50)}
     assert parse_grid("dpm++:3") == {"dpm++": (3,), "ddim": (50,)}
     for bad in ("euler:5", "dpm++:", "dpm++:a", "ddim:0"):
-        with pytest.raises(ValueError, match="--grid"):
+        with pytest.raises(SettingError, match="^grid: "):
             parse_grid(bad)
 
 

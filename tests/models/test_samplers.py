@@ -5,6 +5,7 @@ import math
 import pytest
 import torch
 
+from madp.errors import SettingError
 from madp.models import DDPMSchedule, make_sampler
 from madp.models.samplers import check_sampler, sample_loop
 
@@ -94,11 +95,13 @@ def test_dpm_solver_is_closer_to_the_exact_ode_solution_than_ddim():
 
 
 def test_sampler_settings_are_checked():
-    with pytest.raises(ValueError, match="--sampler"):
+    """Each refusal describes the value by the setting's name (the command line names the flag)."""
+    with pytest.raises(SettingError, match="^sampler: expected one of") as e:
         check_sampler("euler", 10, 0.0)
-    with pytest.raises(ValueError, match="--sampling-steps"):
+    assert e.value.setting == "sampler"
+    with pytest.raises(SettingError, match="^sampling_steps: expected >= 1, got 0"):
         check_sampler("ddim", 0, 0.0)
-    with pytest.raises(ValueError, match="deterministic"):
+    with pytest.raises(SettingError, match="^eta 0.5: DPM-Solver.. is deterministic"):
         check_sampler("dpm++", 10, 0.5)
-    with pytest.raises(ValueError, match="--eta"):
+    with pytest.raises(SettingError, match="^eta: expected a value in"):
         check_sampler("ddim", 10, 1.5)

@@ -14,6 +14,7 @@ from safetensors.torch import load_file
 
 from madp.data_schema.dataset import open_dataset
 from madp.datagen import DatagenConfig, run_datagen
+from madp.errors import InputError, SettingError
 from madp.sim import SimParams
 from madp.training import ShardStream, StreamPosition, load_policy, resolve, train
 from madp.training.config import learning_rate
@@ -72,7 +73,7 @@ def test_d4_augmented_stream_is_an_image_of_the_plain_one_and_resumes_exactly(da
     assert 0.6 * len(aug) < changed < len(aug)
     aug_stream.set_position(StreamPosition(0, 12))
     assert all(torch.equal(x["obs"], y["obs"]) for x, y in zip(aug_stream, aug[12:]))
-    with pytest.raises(ValueError, match="--augment"):
+    with pytest.raises(SettingError, match="^augment: expected one of"):
         ShardStream(dataset, m, "train", seed=5, augment="c4")
 
 
@@ -200,7 +201,7 @@ def test_training_on_several_datasets(dataset, tmp_path):
     meta = json.loads((tmp_path / "run" / "config.json").read_text())
     assert meta["dataset"]["root"] == str(dataset) and meta["dataset"]["more"][0]["root"] == str(other)
     assert meta["dataset"]["more"][0]["weight"] == 2 and meta["action_stats"] == m1.action_stats.to_dict()
-    with pytest.raises(ValueError, match="--data-weights"):
+    with pytest.raises(SettingError, match="^data_weights: expected 2 positive numbers"):
         resolve("lpac", "cpu", data=str(dataset), more_data=(str(other),), data_weights=(1,))
 
 
@@ -216,7 +217,7 @@ def test_init_warm_starts_from_a_policy_file_and_refuses_another_model(dataset, 
     for k, v in ref.state_dict().items():
         assert torch.equal(warm.raw.state_dict()[k], v), k
     assert warm.step == 0 and json.loads((tmp_path / "b" / "config.json").read_text())["init"]["path"] == str(src)
-    with pytest.raises(ValueError, match="--init needs a madp checkpoint"):
+    with pytest.raises(InputError, match="init needs a madp checkpoint"):
         Trainer(resolve("madp", "cpu", data=str(dataset), out=str(tmp_path / "c"), init=str(src)), progress=False)
 
 
