@@ -63,9 +63,11 @@ def rollout(
     steps: int = typer.Option(600, min=0, help="Control steps to run."),
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
     video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
+    device: str = typer.Option("cpu", help="Where a learned controller's model runs: cpu | cuda | cuda:I | auto (cuda when there is one)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import NAMES, make_controller
+    from madp.policies.device import resolve_device
     from madp.sim import CoverageEnv, Scenario
     from madp.sim import rollout as run
 
@@ -82,7 +84,8 @@ def rollout(
             raise UserError(f"--video: {e}") from None
     sc = Scenario.load(scenario)
     noise_seed = seed if seed is not None else (sc.seed if sc.seed is not None else 0)
-    ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed)
+    ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed,
+                           device=resolve_device(device))
     env = CoverageEnv(sc)
     result = run(env, ctrl, steps)
     _write_json(out, result.to_json(controller))
@@ -242,6 +245,7 @@ def train(
     init: Optional[Path] = typer.Option(None, help="Start from this policy.safetensors' weights (same model and preset; fresh optimizer), e.g. the previous DAgger round."),
     edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
+    stop_after_minutes: Optional[float] = typer.Option(None, help="Stop (with a checkpoint) at the first optimizer step after this many minutes of training (a time budget; the lr schedule is not shortened)."),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
     from madp.training import resolve, train as run_train
@@ -259,7 +263,7 @@ def train(
                   out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
-                  stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight,
+                  stop_after_steps=stop_after_steps, stop_after_minutes=stop_after_minutes, augment=augment, edge_weight=edge_weight,
                   init=str(init) if init else None)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
@@ -292,10 +296,12 @@ def eval_cmd(
     out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
     overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
     ray: Optional[str] = _ray_option(),
+    device: str = typer.Option("cpu", help="Where the learned controllers' models run: cpu | cuda | cuda:I | auto (cuda when there is one). Each worker holds its own copy."),
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
     from madp.eval.suites import SUITES
+    from madp.policies.device import resolve_device
 
     suites = list(SUITES) if suite == "all" else [suite]
     if suite != "all" and suite not in SUITES:
@@ -311,7 +317,7 @@ def eval_cmd(
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampler=sampler, sampling_steps=sampling_steps, eta=eta,
                      fixed_noise=fixed_noise, workers=workers, ray=_ray_address(ray), record=record, video=video,
-                     cities=str(cities) if cities else None)
+                     cities=str(cities) if cities else None, device=resolve_device(device))
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     skipped = [c for c in requested if c not in used]
     if skipped:
@@ -463,14 +469,24 @@ def bench_infer_cmd(
     workers: int = typer.Option(0, min=0, help="Worker processes of the sweep (0: all cores)."),
     repeats: int = typer.Option(5, min=1, help="Timed calls per latency median."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
+    device: str = typer.Option("cpu", help="Where MADP runs, in the sweep and the latency: cpu | cuda | cuda:I | auto (cuda when there is one)."),
+    presets: str = typer.Option("cpu,paper", help="Comma-separated presets whose latency is measured."),
+    sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="--no-sweep: no closed-loop sweep; the latency of every --grid setting instead."),
 ) -> None:
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
     from madp.eval.bench import bench_infer_all, parse_grid
+    from madp.models.config import PRESETS
+    from madp.policies.device import resolve_device
 
+    names = tuple(p.strip() for p in presets.split(",") if p.strip())
+    if not names or any(p not in PRESETS for p in names):
+        raise UserError(f"--presets: expected a comma-separated subset of {','.join(PRESETS)}, got {presets!r}")
     r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
-                        repeats=repeats, workers=workers)
+                        repeats=repeats, workers=workers, presets=names, device=resolve_device(device), sweep=sweep)
     sw = r["sweep"]
-    if sw is None:
+    if sw is None and not sweep:
+        typer.echo("--no-sweep: latency of every --grid setting")
+    elif sw is None:
         typer.echo("no trained MADP checkpoint: no closed-loop sweep (latency of DDIM-50 only)")
     else:
         b = sw["baseline"]
@@ -488,8 +504,9 @@ def bench_infer_cmd(
         typer.echo(f"centralized-masked DDIM-50: {c['mean']:.4f}, {c['eval_ms_per_env_step']:.1f} eval ms/env-step; "
                    f"S* = {', '.join(f'{k}: {v}' for k, v in sw['s_star'].items())}; best: {r['best']['sampler']} "
                    f"S = {r['best']['steps']}; plot {r['plot']}")
+    where = "2 threads" if r["device"] == "cpu" else r["device"]
     typer.echo(f"{'preset':<7}{'mode':<15}{'sampler':<8}{'S':>4}{'latency ms':>12}{'vs DDIM-50':>12}"
-               f"   (median, N = 32, 2 threads; paper: {r['paper_latency_s']} s on an RTX 3090)")
+               f"   (median, N = 32, {where}; paper: {r['paper_latency_s']} s on an RTX 3090)")
     for x in r["latency"]:
         typer.echo(f"{x['preset']:<7}{x['mode']:<15}{x['sampler']:<8}{x['num_steps']:>4}{1e3 * x['latency_s']:>12.1f}"
                    f"{x['speedup_vs_ddim50']:>11.1f}x")

@@ -42,20 +42,21 @@ def resolve_checkpoint(name: str, checkpoint: str | None) -> str:
     return str(path)
 
 
-def load_model(kind: str, path: str):
-    """The model of a checkpoint, loaded once per process."""
+def load_model(kind: str, path: str, device: str = "cpu"):
+    """The model of a checkpoint on ``device``, loaded once per process and device."""
     from madp.policies import load
 
-    key = (kind, str(path))
+    key = (kind, str(path), str(device))
     if key not in _models:
-        _models[key] = load(path, kind)[0]
+        _models[key] = load(path, kind, device)[0]
     return _models[key]
 
 
 def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, sampler: str = DEFAULT_SAMPLER,
                     sampling_steps: int = DEFAULT_SAMPLING_STEPS, eta: float = 0.0, fixed_noise: bool = False,
                     device: str = "cpu") -> Controller:
-    """Build controller ``name`` (one of :data:`NAMES`)."""
+    """Build controller ``name`` (one of :data:`NAMES`); a learned one runs its model on ``device``
+    (``"cpu"``, ``"cuda"``, ``"cuda:1"``; :func:`madp.policies.device.resolve_device` checks a user's)."""
     if name not in NAMES:
         raise ValueError(f"--controller: expected one of {', '.join(NAMES)}, got {name!r}")
     if name == "clairvoyant":
@@ -64,7 +65,7 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
         return DecentralizedCVT()
     from madp.policies import LPACPolicy, MADPPolicy
 
-    model = load_model(checkpoint_kind(name), resolve_checkpoint(name, checkpoint))
+    model = load_model(checkpoint_kind(name), resolve_checkpoint(name, checkpoint), device)
     if name == "lpac":
         return LPACPolicy(model, device)
     mode = "decentralized" if name == "madp" else "centralized"

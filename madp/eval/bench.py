@@ -70,7 +70,7 @@ def _final_costs(suite_dir: Path, controller: str) -> tuple[np.ndarray, float]:
 
 
 def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[int, ...]], envs: int, steps: int,
-                      workers: int = 0, progress: bool = True) -> dict:
+                      workers: int = 0, progress: bool = True, device: str = "cpu") -> dict:
     """Run (or resume, or read) the sweep; returns the per-setting statistics and S* per sampler."""
     from .runner import EvalConfig, run_suite
 
@@ -79,7 +79,8 @@ def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[in
     for sampler, s in settings:
         controllers = ("madp", "madp_central") if (sampler, s) == BASELINE else ("madp",)
         cfg = EvalConfig(suite="uniform", out=str(sweep_out / f"{sampler}-{s}"), num_envs=envs, steps=steps,
-                         controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers)
+                         controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers,
+                         device=device)
         run_suite(cfg, "uniform", progress=progress)
         suite_dir = Path(cfg.out) / "uniform"
         costs[(sampler, s)], step_ms[(sampler, s)] = _final_costs(suite_dir, "madp")
@@ -141,18 +142,22 @@ def plot_cost_vs_steps(sweep: dict, path: Path) -> Path:
 def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs/bench-infer",
                     grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
                     repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
-                    progress: bool = True) -> dict:
-    """The whole ``madp bench infer`` (module docstring). Without a checkpoint (none given and none
-    shipped) the sweep is skipped and latency is reported for DDIM-50 only."""
+                    progress: bool = True, device: str = "cpu", sweep: bool = True) -> dict:
+    """The whole ``madp bench infer`` (module docstring) on ``device`` (the sweep's rollouts and the
+    latency). Without a checkpoint (none given and none shipped) the sweep is skipped and latency is
+    reported for DDIM-50 only; with ``sweep=False`` the sweep is skipped and latency is reported for
+    every setting of ``grid`` (DDIM-50 included)."""
     grid = grid or dict(DEFAULT_GRID)
-    out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None}
+    out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None, "device": device}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
     settings = [BASELINE]
-    if path:
+    if not sweep:
+        settings += [(smp, s) for smp, ks in grid.items() for s in ks if (smp, s) != BASELINE]
+    elif path:
         load(path, "madp")  # a wrong or missing file is a one-line error before hours of work
         sweep_out = Path(sweep_out)
         out["checkpoint"] = path
-        out["sweep"] = closed_loop_sweep(path, sweep_out, grid, envs, steps, workers, progress)
+        out["sweep"] = closed_loop_sweep(path, sweep_out, grid, envs, steps, workers, progress, device)
         out["plot"] = str(plot_cost_vs_steps(out["sweep"], sweep_out / "cost_vs_steps.png"))
         settings += [(smp, s) for smp, s in out["sweep"]["s_star"].items() if s is not None and (smp, s) != BASELINE]
     lat = []
@@ -160,7 +165,7 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         for mode in ("decentralized", "centralized"):
             base = None
             for smp, s in settings:
-                r = bench_infer(preset, mode, num_steps=s, sampler=smp, repeats=repeats, threads=threads)
+                r = bench_infer(preset, mode, num_steps=s, sampler=smp, repeats=repeats, threads=threads, device=device)
                 base = base or r["latency_s"]
                 lat.append({**r, "sampler": smp, "speedup_vs_ddim50": base / r["latency_s"]})
     out["latency"] = lat

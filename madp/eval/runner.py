@@ -41,7 +41,7 @@ from madp.sim import CoverageEnv
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
-SETTING_DEFAULTS = {"fixed_noise": False, "video": 0}
+SETTING_DEFAULTS = {"fixed_noise": False, "video": 0, "device": "cpu"}
 
 ORDER = CLASSICAL + LEARNED
 
@@ -66,6 +66,7 @@ class EvalConfig:
     cities: str | None = None
     record_every: int = 5
     record_samples: int = 4
+    device: str = "cpu"  # where the learned controllers' models run ("cpu", "cuda", "cuda:I")
 
 
 def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
@@ -74,7 +75,7 @@ def make_controller(name: str, cfg: EvalConfig, spec: EnvSpec):
     from madp.controllers import make_controller as build
 
     return build(name, cfg.lpac if name == "lpac" else cfg.madp, seed=spec.seed, sampler=cfg.sampler,
-                 sampling_steps=cfg.sampling_steps, eta=cfg.eta, fixed_noise=cfg.fixed_noise)
+                 sampling_steps=cfg.sampling_steps, eta=cfg.eta, fixed_noise=cfg.fixed_noise, device=cfg.device)
 
 
 def sampling_settings(cfg: EvalConfig, controller: str) -> dict:
@@ -308,7 +309,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
                 "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
-                "env_seeds": [e.seed for e in envs]}
+                "env_seeds": [e.seed for e in envs], "device": cfg.device}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in ("lpac", "madp") if getattr(cfg, k) and any(c.startswith(k) for c in cfg.controllers)}
     cfg_file = suite_dir / "config.json"

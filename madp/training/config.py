@@ -46,6 +46,7 @@ class TrainConfig:
     log_every: int = 10
     max_steps_per_epoch: int = 0  # 0: the whole split
     stop_after_steps: int = 0  # stop (after checkpointing) once this many steps are done; 0: never
+    stop_after_minutes: float = 0.0  # stop (after checkpointing) at the first step after this many minutes of fit(); 0: never
     augment: str = "none"  # none | d4 (training samples only; see madp.training.augment)
     init: str = ""  # start from this policy.safetensors' weights (same model and preset), e.g. for DAgger rounds
     edge_weight: str = "binary"  # LPAC-K3's communication graph: binary (the library's) | gaussian
@@ -78,6 +79,8 @@ class TrainConfig:
                              f"got {list(self.data_weights)}")
         if self.edge_weight not in ("binary", "gaussian"):
             raise ValueError(f"--edge-weight: expected binary or gaussian, got {self.edge_weight!r}")
+        if not (math.isfinite(self.stop_after_minutes) and self.stop_after_minutes >= 0):
+            raise ValueError(f"--stop-after-minutes: expected a non-negative number, got {self.stop_after_minutes}")
         if not (self.lr > 0 and math.isfinite(self.lr)):
             raise ValueError(f"--lr: expected a positive learning rate, got {self.lr}")
 

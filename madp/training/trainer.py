@@ -47,9 +47,13 @@ from .stream import ShardStream, StreamPosition, collate_swarms
 
 # --- environment ---------------------------------------------------------------------------------
 def setup_distributed() -> tuple[int, int, torch.device]:
-    """(rank, world_size, device). Under torchrun: NCCL on GPUs, gloo on CPU."""
+    """(rank, world_size, device). Under torchrun: NCCL on GPUs, gloo on CPU. A process group the
+    caller initialised already (e.g. a single-rank NCCL group) is used as it is: training then runs
+    through DDP whatever its size."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
+    if dist.is_initialized():
+        world, rank = dist.get_world_size(), dist.get_rank()
     if torch.cuda.is_available():
         local = int(os.environ.get("LOCAL_RANK", "0"))
         torch.cuda.set_device(local)
@@ -120,6 +124,7 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, resume: bool = False, progress: bool = True):
         self.cfg = cfg
         self.rank, self.world, self.device = setup_distributed()
+        self.ddp = dist.is_initialized()  # torchrun with several ranks, or a group the caller made
         self.is_main = self.rank == 0
         self.progress = progress and self.is_main
         self.out = Path(cfg.out)
@@ -151,7 +156,7 @@ class Trainer:
         self.opt = opt_cls(self.raw.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.ema = EMA(self.raw, cfg.ema_decay) if cfg.model == "madp" else None
         self.model = self.raw
-        if self.world > 1:
+        if self.ddp:
             self.model = torch.nn.parallel.DistributedDataParallel(
                 self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
         self.train_data = ShardStream(cfg.datasets, self.manifests, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
@@ -358,9 +363,25 @@ class Trainer:
         """Updates in the whole run if it is not stopped early (the horizon of the lr schedule)."""
         return sum(self._epoch_batches(e) for e in range(self.cfg.epochs)) // self.cfg.grad_accum
 
+    def _stop_reason(self, t_fit: float) -> str | None:
+        """Why the run stops at this step (``stop_after_steps``, ``stop_after_minutes`` counted from
+        :meth:`fit`'s start in this process), or None. Under DDP rank 0's clock decides for all."""
+        cfg = self.cfg
+        if cfg.stop_after_steps and self.step >= cfg.stop_after_steps:
+            return "stop_after_steps"
+        if not cfg.stop_after_minutes:
+            return None
+        late = time.monotonic() - t_fit >= 60.0 * cfg.stop_after_minutes
+        if self.ddp:
+            flag = torch.tensor(float(late), device=self.device)
+            dist.broadcast(flag, src=0)
+            late = bool(flag)
+        return "stop_after_minutes" if late else None
+
     def fit(self) -> dict:
         cfg = self.cfg
         stop_reason = "epochs"
+        t_fit = time.monotonic()
         total_steps = self.planned_steps() if cfg.lr_schedule != "constant" else 0
         if cfg.model == "lpac" and self.step == 0 and self.is_main:
             self._log({"step": 0, "epoch": 0, **self.dead_units()})  # the initial health, to compare with
@@ -393,13 +414,13 @@ class Trainer:
                 part = self.rank * accum + micro
                 draws = None if step_draws is None else (step_draws[0][part], step_draws[1][part])
                 last = micro == accum - 1
-                sync = self.model.no_sync() if self.world > 1 and not last else nullcontext()
+                sync = self.model.no_sync() if self.ddp and not last else nullcontext()
                 with sync:  # DDP averages the gradients over ranks at the step's last micro-batch
                     loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device)
                     (loss / accum).backward()
                 self.batches_done += 1
                 seen += batch["obs"].shape[0] * self.world
-                if self.world > 1:
+                if self.ddp:
                     self.seen_ids.update(zip(batch["episode_id"].tolist(), batch["step"].tolist()))
                 loss_sum += float(loss.detach())
                 if not last:
@@ -424,10 +445,11 @@ class Trainer:
                     bar.update(self.batches_done, loss_v, rate)
                 if self.batches_done % (cfg.checkpoint_every * unit) == 0:
                     self._save("latest")
-                if cfg.stop_after_steps and self.step >= cfg.stop_after_steps and self.batches_done % unit == 0:
+                stop = self._stop_reason(t_fit) if self.batches_done % unit == 0 else None
+                if stop:
                     self._save("latest")
                     bar.close()
-                    return {"stopped": "stop_after_steps", "step": self.step}
+                    return {"stopped": stop, "step": self.step}
             bar.close()
             val = self.validate()
             improved = val < self.best_val - cfg.min_delta
@@ -446,7 +468,7 @@ class Trainer:
             if self.bad_epochs >= cfg.patience:
                 stop_reason = f"early stop: no improvement > {cfg.min_delta} for {cfg.patience} epochs"
                 break
-        if self.world > 1:
+        if self.ddp:
             self._check_sync()
         return {"stopped": stop_reason, "step": self.step, "epoch": self.epoch, "best_val_loss": self.best_val}
 
