@@ -278,7 +278,7 @@ app.add_typer(scenario_app, name="scenario")
 
 @app.command("eval")
 def eval_cmd(
-    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all"),
+    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities)"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help="Comma-separated subset of clairvoyant,dcvt,lpac,madp,madp_central (default: every one available)."),
@@ -303,9 +303,9 @@ def eval_cmd(
     from madp.eval.suites import SUITES
     from madp.policies.device import resolve_device
 
-    suites = list(SUITES) if suite == "all" else [suite]
-    if suite != "all" and suite not in SUITES:
-        raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    suites = list(SUITES) if suite == "all" else [s.strip() for s in suite.split(",")]
+    if any(s not in SUITES for s in suites):
+        raise UserError(f"--suite: expected one of {list(SUITES) + ['all']} or a comma-separated list, got {suite!r}")
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else ("clairvoyant", "dcvt", "lpac", "madp")
     from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 

@@ -436,18 +436,17 @@ class Trainer:
                 loss_v = loss_sum / accum
                 if not math.isfinite(loss_v):
                     raise FloatingPointError(f"training loss became {loss_v} at step {self.step}")
-                if self.step % cfg.log_every == 0 or self.batches_done == batches:
+                stop = self._stop_reason(t_fit) if self.batches_done % unit == 0 else None
+                if self.step % cfg.log_every == 0 or self.batches_done == batches or stop:  # a stopped run logs its last step
                     now = time.perf_counter()
                     rate = seen / max(now - t_last, 1e-9)
                     self._log({"step": self.step, "epoch": self.epoch, "loss": loss_v,
                                "lr": self.opt.param_groups[0]["lr"], "samples_per_s": rate})
                     t_last, seen = now, 0
                     bar.update(self.batches_done, loss_v, rate)
-                if self.batches_done % (cfg.checkpoint_every * unit) == 0:
+                if stop or self.batches_done % (cfg.checkpoint_every * unit) == 0:
                     self._save("latest")
-                stop = self._stop_reason(t_fit) if self.batches_done % unit == 0 else None
                 if stop:
-                    self._save("latest")
                     bar.close()
                     return {"stopped": stop, "step": self.step}
             bar.close()
