@@ -75,6 +75,7 @@ def rollout(
         raise UserError(f"--controller: expected one of {', '.join(NAMES)}, got {controller!r}")
     if checkpoint is not None and controller in ("clairvoyant", "dcvt"):
         raise UserError(f"--checkpoint: the {controller} controller takes no checkpoint")
+    device = resolve_device(device)
     if video is not None:
         from madp.video import check_video_path
 
@@ -84,8 +85,7 @@ def rollout(
             raise UserError(f"--video: {e}") from None
     sc = Scenario.load(scenario)
     noise_seed = seed if seed is not None else (sc.seed if sc.seed is not None else 0)
-    ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed,
-                           device=resolve_device(device))
+    ctrl = make_controller(controller, str(checkpoint) if checkpoint else None, seed=noise_seed, device=device)
     env = CoverageEnv(sc)
     result = run(env, ctrl, steps)
     _write_json(out, result.to_json(controller))
