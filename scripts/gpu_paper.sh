@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The paper's model on one fresh GPU machine (sized for one H200 with 16 cores: ~8 min at the defaults):
+# The paper's model on one fresh GPU machine (defaults sized for one H200 with 16 cores: ~8 min, estimated):
 #   install -> preflight (torch, the device, the numba kernels) -> the `cuda`-marked tests -> madp datagen --n 100000 (all cores)
 #   -> madp train --preset paper (bf16 autocast on the GPU, a time budget) [-> one DAgger round]
 #   -> the checkpoint in float16, split into parts of at most 16 MiB -> madp eval uniform,cities with
