@@ -241,6 +241,7 @@ def train(
     augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
     init: Optional[Path] = typer.Option(None, help="Start from this policy.safetensors' weights (same model and preset; fresh optimizer), e.g. the previous DAgger round."),
     edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
+    compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (README, Training speed)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
@@ -260,7 +261,7 @@ def train(
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
                   stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight,
-                  init=str(init) if init else None)
+                  init=str(init) if init else None, compile=compile or None)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "

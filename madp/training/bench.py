@@ -15,7 +15,8 @@ phases that are timed separately (device-synchronised):
 training process achieves when its loader keeps up). The FLOPs of forward + backward are counted
 by ``torch.utils.flop_counter`` (matmuls, convolutions, attention; element-wise work is not
 counted), and the same run measures the float32 matmul FLOP/s of the same thread count
-(:func:`madp.models.bench.matmul_flops_per_s`): ``fraction_of_matmul`` is the achieved share of that
+(:func:`madp.models.bench.matmul_flops_per_s`, sampled after every round of steps, median):
+``fraction_of_matmul`` is the achieved share of that
 physical limit and ``samples_per_matmul_gflop`` the machine-normalised throughput (samples/s per
 GFLOP/s of matmul), which moves less with the machine's load than samples/s do.
 """
@@ -142,7 +143,7 @@ class _CaseRun:
             for p, v in zip(PHASES, (d_data, d_fwd, d_bwd, d_opt)):
                 self.times[p].append(v)
 
-    def report(self, measure_matmul: bool) -> dict[str, Any]:
+    def report(self, matmul_flops: float | None) -> dict[str, Any]:
         cfg, case = self.cfg, self.case
         with _threads(case.threads):
             batch = next(self.batches)
@@ -160,8 +161,8 @@ class _CaseRun:
                 "step_s": step_s, "samples_per_s": cfg.batch_size / step_s,
                 "flops_per_step": flops, "achieved_flops_per_s": flops / step_s,
             }
-            if measure_matmul:
-                mm = matmul_flops_per_s(n=1024, reps=5, device=self.device)
+            if matmul_flops:
+                mm = matmul_flops
                 out.update(matmul_flops_per_s=mm, fraction_of_matmul=flops / step_s / mm,
                            samples_per_matmul_gflop=out["samples_per_s"] / (mm / 1e9))
         return out
@@ -178,10 +179,16 @@ def bench_train(cases: list[TrainBenchCase], data: Path, steps: int = 10, warmup
     with ``measure_matmul``, ``matmul_flops_per_s``, ``fraction_of_matmul`` and
     ``samples_per_matmul_gflop``."""
     runs = [_CaseRun(c, data, seed, torch.device(device)) for c in cases]
+    thread_counts = sorted({c.threads for c in cases})
+    matmul: dict[int, list[float]] = {t: [] for t in thread_counts}
     for i in range(warmup + steps):
         for r in runs:
             r.step(timed=i >= warmup)
-    return [r.report(measure_matmul) for r in runs]
+        if measure_matmul and i >= warmup:  # the peak is sampled between the steps, under the same load
+            for t in thread_counts:
+                with _threads(t):
+                    matmul[t].append(matmul_flops_per_s(n=1024, reps=1, device=device))
+    return [r.report(statistics.median(matmul[r.case.threads]) if measure_matmul else None) for r in runs]
 
 
 def run_train_bench(cases: list[TrainBenchCase], data: Path | None = None, steps: int = 10, warmup: int = 3,

@@ -172,6 +172,8 @@ class Trainer:
         if self.world > 1:
             self.model = torch.nn.parallel.DistributedDataParallel(
                 self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
+        if cfg.compile:  # the training forward only; validation and checkpoints use the plain module
+            self.model = torch.compile(self.model)
         self.train_data = ShardStream(cfg.datasets, self.manifests, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
                                       self.rank, self.world, augment=cfg.augment, weights=cfg.weights)
         self._refuse_empty_epochs()
