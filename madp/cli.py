@@ -244,6 +244,7 @@ def train(
     augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
     init: Optional[Path] = typer.Option(None, help="Start from this policy.safetensors' weights (same model and preset; fresh optimizer), e.g. the previous DAgger round."),
     edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
+    compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (README, Training speed)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
     stop_after_minutes: Optional[float] = typer.Option(None, help="Stop (with a checkpoint) at the first optimizer step after this many minutes of training (a time budget; the lr schedule is not shortened)."),
 ) -> None:
@@ -264,7 +265,7 @@ def train(
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
                   stop_after_steps=stop_after_steps, stop_after_minutes=stop_after_minutes, augment=augment, edge_weight=edge_weight,
-                  init=str(init) if init else None)
+                  init=str(init) if init else None, compile=compile or None)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "
@@ -441,22 +442,40 @@ def bench_io_cmd(
 
 @bench_app.command("train")
 def bench_train_cmd(
-    steps: int = typer.Option(3, min=1, help="Timed steps per configuration (median)."),
-    paper_batch: int = typer.Option(196, min=1, help="Batch of the paper-preset MADP measurement."),
+    models: str = typer.Option("madp,lpac", help="Comma-separated: madp, lpac."),
+    presets: str = typer.Option("cpu,paper", help="Comma-separated: cpu, paper."),
+    threads: str = typer.Option("1,2", help="Comma-separated torch thread counts."),
+    steps: int = typer.Option(10, min=1, help="Timed steps per case (median)."),
+    warmup: int = typer.Option(3, min=0, help="Untimed steps per case first."),
+    data: Optional[Path] = typer.Option(None, help="Dataset to stream (default: 256 samples made in a temporary directory)."),
+    ablate: bool = typer.Option(False, help="Instead: the speed options one at a time (MADP and LPAC-K3, cpu preset, 1 thread)."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
-    """Training samples/s of both models and presets; MADP FLOP/s as a fraction of matmul FLOP/s."""
-    from madp.models.bench import bench_train_step
+    """Training samples/s by phase (data, forward, backward, optimizer) beside the matmul peak (see README)."""
+    from madp.training.bench import ablation_cases, default_cases, format_train_bench, run_train_bench
 
-    rows = [bench_train_step(m, p, b, steps=steps if p == "cpu" else max(1, steps - 1), warmup=1)
-            for m, p, b in (("madp", "cpu", 32), ("lpac", "cpu", 32), ("lpac", "paper", 32), ("madp", "paper", paper_batch))]
-    typer.echo(f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}  {'share of matmul peak'}")
-    for r in rows:
-        frac = f"{100 * r['fraction_of_matmul']:.0f}% of {r['matmul_flops_per_s'] / 1e9:.0f} GFLOP/s" if "fraction_of_matmul" in r else "-"
-        gf = f"{r['flops_per_step'] / 1e9:.1f}" if "flops_per_step" in r else "-"
-        typer.echo(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}  {frac}")
+    if ablate:
+        cases = [c for m in ("madp", "lpac") for c in ablation_cases(m)]
+    else:
+        thread_counts = [int(t) for t in _csv(threads, "--threads", "positive integers", str.isdigit) if int(t) > 0]
+        if not thread_counts:
+            raise UserError(f"--threads: expected comma-separated positive integers, got {threads!r}")
+        cases = default_cases(_csv(models, "--models", "madp, lpac", {"madp", "lpac"}.__contains__),
+                              _csv(presets, "--presets", "cpu, paper", {"cpu", "paper"}.__contains__), thread_counts)
+    if data is not None and not (data / "manifest.json").is_file():
+        raise UserError(f"--data: {data}/manifest.json not found (expected a madp dataset)")
+    rows = run_train_bench(cases, data, steps=steps, warmup=warmup)
+    typer.echo(format_train_bench(rows))
     if out:
         _write_json(out, rows)
+
+
+def _csv(value: str, flag: str, expected: str, ok) -> List[str]:
+    """The comma-separated items of ``value``; one line naming ``flag`` unless every item is ``ok``."""
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    if not items or not all(ok(v) for v in items):
+        raise UserError(f"{flag}: expected comma-separated {expected}, got {value!r}")
+    return items
 
 
 @bench_app.command("infer")

@@ -50,6 +50,7 @@ class TrainConfig:
     augment: str = "none"  # none | d4 (training samples only; see madp.training.augment)
     init: str = ""  # start from this policy.safetensors' weights (same model and preset), e.g. for DAgger rounds
     edge_weight: str = "binary"  # LPAC-K3's communication graph: binary (the library's) | gaussian
+    compile: bool = False  # MADP through torch.compile (inductor): faster steps after a compile at the start
 
     def __post_init__(self) -> None:
         if self.model not in ("madp", "lpac"):
@@ -77,6 +78,8 @@ class TrainConfig:
                                   or not all(math.isfinite(w) and w > 0 for w in self.data_weights)):
             raise ValueError(f"--data-weights: expected {1 + len(self.more_data)} positive numbers (one per --data), "
                              f"got {list(self.data_weights)}")
+        if self.compile and self.model != "madp":
+            raise ValueError("--compile: only MADP compiles (torch_geometric's scatter in LPAC-K3 does not trace)")
         if self.edge_weight not in ("binary", "gaussian"):
             raise ValueError(f"--edge-weight: expected binary or gaussian, got {self.edge_weight!r}")
         if not (math.isfinite(self.stop_after_minutes) and self.stop_after_minutes >= 0):
