@@ -139,6 +139,7 @@ def datagen(
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
+    launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; README Datasets)."),
     ray: Optional[str] = _ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
@@ -159,7 +160,7 @@ def datagen(
     elif beta:
         raise ValueError("--beta: only meaningful with --policy")
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
-                        policy=learner, max_steps=max_steps or (600 if policy is not None else 2100))
+                        policy=learner, max_steps=max_steps or (600 if policy is not None else 2100), launch=launch)
     run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite, ray=_ray_address(ray))
 
 
@@ -274,7 +275,7 @@ app.add_typer(scenario_app, name="scenario")
 
 @app.command("eval")
 def eval_cmd(
-    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all"),
+    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all | symmetry (the launch layouts' rotations and reflections; not in all)"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help="Comma-separated subset of clairvoyant,dcvt,lpac,madp,madp_central (default: every one available)."),
@@ -295,11 +296,11 @@ def eval_cmd(
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
-    from madp.eval.suites import SUITES
+    from madp.eval.suites import EXTRA_SUITES, SUITES
 
     suites = list(SUITES) if suite == "all" else [suite]
-    if suite != "all" and suite not in SUITES:
-        raise UserError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    if suite != "all" and suite not in SUITES + EXTRA_SUITES:
+        raise UserError(f"--suite: expected one of {list(SUITES) + ['all'] + list(EXTRA_SUITES)}, got {suite!r}")
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else ("clairvoyant", "dcvt", "lpac", "madp")
     from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 
