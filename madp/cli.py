@@ -142,6 +142,7 @@ def datagen(
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
+    launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; README Datasets)."),
     ray: Optional[str] = _ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
@@ -162,7 +163,7 @@ def datagen(
     elif beta:
         raise ValueError("--beta: only meaningful with --policy")
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
-                        policy=learner, max_steps=max_steps or (600 if policy is not None else 2100))
+                        policy=learner, max_steps=max_steps or (600 if policy is not None else 2100), launch=launch)
     run_datagen(cfg, out, workers=workers, shards=_parse_shards(shards), overwrite=overwrite, ray=_ray_address(ray))
 
 
@@ -279,7 +280,7 @@ app.add_typer(scenario_app, name="scenario")
 
 @app.command("eval")
 def eval_cmd(
-    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities)"),
+    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help="Comma-separated subset of clairvoyant,dcvt,lpac,madp,madp_central (default: every one available)."),
@@ -301,12 +302,13 @@ def eval_cmd(
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
-    from madp.eval.suites import SUITES
+    from madp.eval.suites import EXTRA_SUITES, SUITES
     from madp.policies.device import resolve_device
 
     suites = list(SUITES) if suite == "all" else [s.strip() for s in suite.split(",")]
-    if any(s not in SUITES for s in suites):
-        raise UserError(f"--suite: expected one of {list(SUITES) + ['all']} or a comma-separated list, got {suite!r}")
+    if any(s not in SUITES + EXTRA_SUITES for s in suites):
+        raise UserError(f"--suite: expected one of {list(SUITES) + ['all'] + list(EXTRA_SUITES)} or a comma-separated "
+                        f"list, got {suite!r}")
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else ("clairvoyant", "dcvt", "lpac", "madp")
     from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 

@@ -13,6 +13,9 @@
 |         |                                                 | y ∈ [96, 352]                         |
 | scale   | N{n}_F{f} for n, f ∈ {16, 32, 64, 128}           | num_envs per (N, F)                   |
 | all     | every suite above                               |                                       |
+| symmetry | {line,square}_d4-{g}, g = 0..7                 | the launch suite's line and square    |
+|         | (not part of all)                               | environments and their 7 images under |
+|         |                                                 | the world's rotations and reflections |
 
 Seeds: an environment's scenario seed is a hash of (suite, group, index) with bit 62 set, and
 dataset seeds always have it clear (:mod:`madp.datagen.plan`), so evaluation never replays a
@@ -29,9 +32,12 @@ from pathlib import Path
 import numpy as np
 
 from madp.sim import Scenario, SimParams
+from madp.sim.launch import D4_SIZE
 
 EVAL_SEED_BIT = 1 << 62
 SUITES = ("uniform", "sigma", "cities", "launch", "scale")
+EXTRA_SUITES = ("symmetry",)  # diagnostic suites, run by name only (not by ``all``)
+SYMMETRY_LAYOUTS = ("line", "square")
 SIGMA_RANGES = ((30, 40), (20, 30), (10, 20), (5, 10))
 LAUNCHES = {"uniform": None, "square": (115.25, 115.25, 217.25, 217.25), "line": (0.0, 96.0, 1024.0, 352.0)}
 SCALE_SIZES = (16, 32, 64, 128)
@@ -57,9 +63,13 @@ class EnvSpec:
     params: SimParams
     launch: str = "uniform"
     city_file: str = ""
+    d4: int = 0  # element of the world's symmetry group applied to the scenario (madp.sim.launch)
 
     @property
     def seed(self) -> int:
+        """The scenario seed; an image of the symmetry suite shares its launch environment's."""
+        if self.suite == "symmetry":
+            return eval_seed("launch", self.launch, self.index)
         return eval_seed(self.suite, self.group, self.index)
 
     @property
@@ -69,7 +79,8 @@ class EnvSpec:
 
     def scenario(self) -> Scenario:
         if not self.city_file:
-            return Scenario.random(self.seed, self.params, LAUNCHES[self.launch], name=f"{self.suite}/{self.key}")
+            base = Scenario.random(self.seed, self.params, LAUNCHES[self.launch])
+            return replace(base.d4_image(self.d4) if self.d4 else base, name=f"{self.suite}/{self.key}")
         from .cities import import_city
 
         src = import_city(self.city_file, seed=self.seed, sigma_range=self.params.sigma_range_m,
@@ -98,6 +109,9 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
     if suite == "scale":
         return [EnvSpec(suite, f"N{n}_F{f}", i, replace(base, num_robots=n, num_features=f))
                 for n in SCALE_SIZES for f in SCALE_SIZES for i in range(num_envs)]
+    if suite == "symmetry":
+        return [EnvSpec(suite, f"{name}_d4-{g}", i, base, launch=name, d4=g)
+                for name in SYMMETRY_LAYOUTS for g in range(D4_SIZE) for i in range(num_envs)]
     if suite == "cities":
         from .cities import load_city_dir
 
@@ -106,4 +120,4 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
         if not files:
             raise ValueError(f"{directory}: no city files (.csv, .geojson, .json) found")
         return [EnvSpec(suite, Path(f).name.split(".")[0], 0, base, city_file=str(f)) for f in files[:num_envs]]
-    raise ValueError(f"--suite: expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    raise ValueError(f"--suite: expected one of {list(SUITES) + ['all'] + list(EXTRA_SUITES)}, got {suite!r}")
