@@ -331,7 +331,7 @@ def eval_cmd(
 
 @eval_app.command("compare")
 def eval_compare_cmd(
-    runs: List[str] = typer.Argument(..., metavar="RUN_A RUN_B [RUN_C ...]", help="Finished suite directories of madp eval (OUT/<suite>/), each optionally NAME=PATH."),
+    runs: List[str] = typer.Argument(..., metavar="RUN", help="Two or more finished suite directories of madp eval (OUT/<suite>/), each PATH or NAME=PATH."),
     baseline: Optional[str] = typer.Option(None, help="The run the others are compared with: a name or a path (default: the first)."),
     out: Optional[Path] = typer.Option(None, help="Where compare.md, compare.json and compare.png go (default runs/compare/<suite>)."),
 ) -> None:

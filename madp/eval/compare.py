@@ -120,8 +120,8 @@ def _check_run(run: Run, results_file: Path, suite: np.ndarray) -> None:
     bad = np.flatnonzero(~np.isfinite(run.final_cost))
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"{results_file}: final_cost is {run.final_cost[i]} for controller {run.controller[i]!r}, "
-                         f"group {run.group[i]!r}, env {int(run.env[i])}; expected a finite cost")
+        raise ValueError(f"{results_file}: final_cost is {run.final_cost[i]} for controller {str(run.controller[i])!r}, "
+                         f"group {str(run.group[i])!r}, env {int(run.env[i])}; expected a finite cost")
     envs = run.environments()
     if len({(g, e) for g, e, _ in envs}) != len(envs):
         raise ValueError(f"{results_file}: an environment appears with two scenario seeds")

@@ -1,8 +1,10 @@
 """madp eval compare: paired numbers equal a direct computation from results.parquet; refusals are one line."""
 
 import json
+import shutil
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 import torch
@@ -94,4 +96,17 @@ def test_compare_refuses_other_environments_and_missing_runs(runs, tmp_path):
     assert_one_line(*cli("eval", "compare", a, runs / "b", "--out", out), "holds the suites uniform")
     assert_one_line(*cli("eval", "compare", a, "--out", out), "at least two")
     assert_one_line(*cli("eval", "compare", a, runs / "b" / "uniform", "--baseline", "c", "--out", out), "--baseline")
+    # a copy of run a that claims other steps, and one with a NaN cost
+    longer, broken = tmp_path / "longer" / "uniform", tmp_path / "broken" / "uniform"
+    for d in (longer, broken):
+        shutil.copytree(a, d)
+    config = json.loads((longer / "config.json").read_text())
+    (longer / "config.json").write_text(json.dumps({**config, "steps": STEPS + 1}))
+    assert_one_line(*cli("eval", "compare", a, longer, "--out", out), f"runs differ in steps: a ran {STEPS}, longer {STEPS + 1}")
+    table = pq.read_table(a / "results.parquet")
+    cost = table.column("final_cost").to_numpy().copy()
+    cost[5] = np.nan
+    pq.write_table(table.set_column(table.column_names.index("final_cost"), "final_cost", pa.array(cost)),
+                   broken / "results.parquet")
+    assert_one_line(*cli("eval", "compare", a, broken, "--out", out), "results.parquet: final_cost is nan for controller 'lpac', group 'uniform', env 2")
     assert not out.exists()
