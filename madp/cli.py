@@ -278,8 +278,13 @@ scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Sc
 app.add_typer(scenario_app, name="scenario")
 
 
-@app.command("eval")
+eval_app = typer.Typer(invoke_without_command=True, no_args_is_help=False, rich_markup_mode=None)
+app.add_typer(eval_app, name="eval")
+
+
+@eval_app.callback()
 def eval_cmd(
+    ctx: typer.Context,
     suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
@@ -300,7 +305,10 @@ def eval_cmd(
     ray: Optional[str] = _ray_option(),
     device: str = typer.Option("cpu", help="Where the learned controllers' models run: cpu | cuda | cuda:I | auto (cuda when there is one). Each worker holds its own copy."),
 ) -> None:
-    """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
+    """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos.
+    `madp eval compare RUN_A RUN_B …` compares finished evaluations."""
+    if ctx.invoked_subcommand is not None:
+        return
     from madp.eval.runner import ORDER, EvalConfig, available_controllers, run_suite
     from madp.eval.suites import EXTRA_SUITES, SUITES
     from madp.policies.device import resolve_device
@@ -328,6 +336,24 @@ def eval_cmd(
     for s in suites:
         summary = run_suite(cfg, s, overwrite=overwrite)
         typer.echo((Path(cfg.out) / s / "summary.md").read_text())
+
+
+@eval_app.command("compare")
+def eval_compare_cmd(
+    runs: List[str] = typer.Argument(..., metavar="RUN", help="Two or more finished suite directories of madp eval (OUT/<suite>/), each PATH or NAME=PATH."),
+    baseline: Optional[str] = typer.Option(None, help="The run the others are compared with: a name or a path (default: the first)."),
+    out: Optional[Path] = typer.Option(None, help="Where compare.md, compare.json and compare.png go (default runs/compare/<suite>)."),
+) -> None:
+    """Compare evaluations of one suite on the same environments: each run's mean, the paired difference to the baseline (SE, 95% interval) and wins k/n per controller and group."""
+    from madp.eval.compare import compare_runs, load_run, markdown, name_runs, parse_run_argument, write_compare
+
+    if len(runs) < 2:
+        raise UserError(f"compare: expected at least two run directories, got {len(runs)}")
+    loaded = name_runs([load_run(path, name) for name, path in map(parse_run_argument, runs)])
+    cmp = compare_runs(loaded, baseline)
+    files = write_compare(cmp, out or Path("runs/compare") / cmp["suite"])
+    typer.echo(markdown(cmp))
+    typer.echo(f"-> {', '.join(str(p) for p in files.values())}")
 
 
 @scenario_app.command("import")
