@@ -18,6 +18,7 @@ from typing import List, Optional, Tuple
 
 import typer
 
+from madp.cli_main import _ray_option
 from madp.controllers import DEFAULT, NAMES
 from madp.errors import SettingError
 from madp.io.atomic import write_json_atomic
@@ -26,27 +27,8 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
 dataset_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Inspect, verify, convert and merge datasets.")
 scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Scenario files.")
-bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Benchmarks (medians, with a baseline measured in the same run).")
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
-app.add_typer(bench_app, name="bench")
-
-#: ``--ray`` of datagen and eval; given alone, main() supplies ``local`` (madp.io.ray_backend.RAY_LOCAL).
-RAY_HELP = ("Run the tasks on Ray: alone, a Ray started on this machine; 'auto': the cluster running here "
-            "(ray start); HOST:PORT or ray://HOST:10001: that cluster. The output directory must be on a "
-            "filesystem every node sees. Never changes the results. Needs madp[ray].")
-
-
-def _ray_option(help: str = RAY_HELP):
-    return typer.Option(None, "--ray", metavar="[ADDRESS]", help=help)
-
-
-def _show(lines: List[str], result: object, out: Optional[Path]) -> None:
-    """Print a bench's lines; write its figures as JSON to ``out`` when given."""
-    typer.echo("\n".join(lines))
-    if out:
-        write_json_atomic(out, result)
-
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
 @app.command()
@@ -58,9 +40,11 @@ def rollout(
     steps: int = typer.Option(600, min=0, help="Control steps to run."),
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
     video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
+    device: str = typer.Option("cpu", help="Where a learned controller's model runs: cpu | cuda | cuda:I | auto (cuda when there is one)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import controller_info, make_controller
+    from madp.policies.device import resolve_device
     from madp.sim import CoverageEnv, Scenario, rollout as run
     from madp.video import Frames, check_video_path
 
@@ -69,7 +53,8 @@ def rollout(
         raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
     frames = [Frames(check_video_path(video), steps)] if video is not None else []  # checked before the rollout
     sc = Scenario.load(scenario)
-    ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0)
+    ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0,
+                           device=resolve_device(device))
     result = run(CoverageEnv(sc), ctrl, steps, frames)
     write_json_atomic(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
@@ -98,6 +83,7 @@ def datagen(
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
+    launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; README Datasets)."),
     ray: Optional[str] = _ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
@@ -107,7 +93,8 @@ def datagen(
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
-                        policy=learner_settings(policy, beta), max_steps=max_steps or (600 if policy else 2100))
+                        policy=learner_settings(policy, beta), max_steps=max_steps or (600 if policy else 2100),
+                        launch=launch)
     run_datagen(cfg, out, workers=workers, shards=parse_shards(shards), overwrite=overwrite, ray=ray)
 
 
@@ -174,6 +161,8 @@ def train(
     augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
     init: Optional[Path] = typer.Option(None, help="Start from this policy.safetensors' weights (same model and preset; fresh optimizer), e.g. the previous DAgger round."),
     edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
+    compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (README, Training speed)."),
+    stop_after_minutes: Optional[float] = typer.Option(None, help="Stop (with a checkpoint) at the first optimizer step after this many minutes of training (a time budget; the lr schedule is not shortened)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
@@ -189,17 +178,22 @@ def train(
                   out=str(out) if out else None, epochs=epochs, batch_size=batch_size,
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
-                  stop_after_steps=stop_after_steps, augment=augment, edge_weight=edge_weight,
-                  init=str(init) if init else None)
+                  stop_after_steps=stop_after_steps, stop_after_minutes=stop_after_minutes, augment=augment,
+                  edge_weight=edge_weight, init=str(init) if init else None, compile=compile or None)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "
                    f"best val loss {res.get('best_val_loss', float('nan')):.5f} -> {cfg.out}")
 
 
-@app.command("eval")
+eval_app = typer.Typer(invoke_without_command=True, no_args_is_help=False, rich_markup_mode=None)
+app.add_typer(eval_app, name="eval")
+
+
+@eval_app.callback()
 def eval_cmd(
-    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all"),
+    ctx: typer.Context,
+    suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint)."),
@@ -217,11 +211,16 @@ def eval_cmd(
     out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
     overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
     ray: Optional[str] = _ray_option(),
+    device: str = typer.Option("cpu", help="Where the learned controllers' models run: cpu | cuda | cuda:I | auto (cuda when there is one). Each worker holds its own copy."),
 ) -> None:
-    """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos."""
+    """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos.
+    `madp eval compare RUN_A RUN_B …` compares finished evaluations."""
+    if ctx.invoked_subcommand is not None:
+        return
     from madp.eval.runner import EvalConfig, available_controllers, run_suite
     from madp.eval.suites import suite_names
     from madp.policies import SamplingSettings
+    from madp.policies.device import resolve_device
 
     suites = suite_names(suite)
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else DEFAULT
@@ -230,7 +229,7 @@ def eval_cmd(
     sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=ray,
-                     record=record, video=video, cities=str(cities) if cities else None)
+                     record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device))
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)
@@ -238,6 +237,21 @@ def eval_cmd(
     for s in suites:
         run_suite(cfg, s, overwrite=overwrite)
         typer.echo((Path(cfg.out) / s / "summary.md").read_text())
+
+
+@eval_app.command("compare")
+def eval_compare_cmd(
+    runs: List[str] = typer.Argument(..., metavar="RUN", help="Two or more finished suite directories of madp eval (OUT/<suite>/), each PATH or NAME=PATH."),
+    baseline: Optional[str] = typer.Option(None, help="The run the others are compared with: a name or a path (default: the first)."),
+    out: Optional[Path] = typer.Option(None, help="Where compare.md, compare.json and compare.png go (default runs/compare/<suite>)."),
+) -> None:
+    """Compare evaluations of one suite on the same environments: each run's mean, the paired difference to the baseline (SE, 95% interval) and wins k/n per controller and group."""
+    from madp.eval.compare import compare_runs, load_runs, markdown, write_compare
+
+    cmp = compare_runs(load_runs(runs), baseline)
+    files = write_compare(cmp, out or Path("runs/compare") / cmp["suite"])
+    typer.echo(markdown(cmp))
+    typer.echo(f"-> {', '.join(str(p) for p in files.values())}")
 
 
 @scenario_app.command("import")
@@ -259,83 +273,13 @@ def scenario_import_cmd(
                f"square (centre {src.square_center_latlon[0]:.5f}, {src.square_center_latlon[1]:.5f}) -> {out}")
 
 
-# --- benchmarks ----------------------------------------------------------------------------------
-@bench_app.command("sim")
-def bench_sim_cmd(
-    scenarios: int = typer.Option(3, min=1, help="Random scenarios (seeds SEED, SEED+1, ...)."),
-    steps: int = typer.Option(20, min=10, help="Steps per scenario (>= 10) along each controller's trajectory."),
-    seed: int = typer.Option(12345, help="Seed of the first scenario."),
-    library: Optional[bool] = typer.Option(None, "--library/--no-library", help="Time the Coverage Control Library (madp[reference]) beside madp: default when it imports; --library requires it."),
-    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
-) -> None:
-    """Clairvoyant step, DCVT step, J and observations at N = F = 32 on a 1024² world: medians of madp and of the Coverage Control Library, interleaved, and their ratio."""
-    from madp.sim.bench import bench_sim, format_table
+def _add_bench() -> None:
+    from madp.cli_bench import bench_app  # the benchmark commands (madp bench ...)
 
-    try:
-        res = bench_sim(scenarios=scenarios, steps=steps, seed=seed, library=library)
-    except ImportError as e:  # --library without a working coverage_control
-        raise SettingError("library", str(e)) from e
-    _show(format_table(res), res, out)
+    app.add_typer(bench_app, name="bench")
 
 
-@bench_app.command("datagen")
-def bench_datagen_cmd(
-    n: int = typer.Option(1024, "--n", min=64, help="Samples to generate for the timing."),
-    workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
-    format: str = typer.Option("mcap", "--format", help="mcap | parquet"),
-    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
-    ray: Optional[str] = _ray_option("Measure the Ray backend's per-task overhead on this cluster ('auto', HOST:PORT) instead of a Ray started on this machine (measured whenever madp[ray] is installed)."),
-) -> None:
-    """End-to-end datagen rate at N = F = 32, the projected time for 100k samples, and the Ray backend's per-task overhead."""
-    from madp.datagen.bench import bench_datagen_and_ray, format_table
-
-    r = bench_datagen_and_ray(n, workers, format, ray)
-    _show(format_table(r, n, format), r, out)
-
-
-@bench_app.command("io")
-def bench_io_cmd(
-    n: int = typer.Option(512, "--n", min=16, help="Samples of real expert rollouts to encode and read."),
-    repeats: int = typer.Option(5, min=1, help="Read passes per format (median)."),
-    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
-) -> None:
-    """Bytes per sample and decode throughput: MCAP, Parquet, and a float16 numpy memmap baseline."""
-    from madp.data_schema.bench import bench_io_real, format_table
-
-    r = bench_io_real(n, repeats)
-    _show(format_table(r, repeats), r, out)
-
-
-@bench_app.command("train")
-def bench_train_cmd(
-    steps: int = typer.Option(3, min=1, help="Timed steps per configuration (median)."),
-    paper_batch: int = typer.Option(196, min=1, help="Batch of the paper-preset MADP measurement."),
-    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
-) -> None:
-    """Training samples/s of both models and presets; MADP FLOP/s as a fraction of matmul FLOP/s."""
-    from madp.models.bench import bench_train_all, format_train_table
-
-    rows = bench_train_all(steps, paper_batch)
-    _show(format_train_table(rows), rows, out)
-
-
-@bench_app.command("infer")
-def bench_infer_cmd(
-    madp: Optional[Path] = typer.Option(None, help="Trained MADP checkpoint for the closed-loop sweep (default: shipped)."),
-    envs: int = typer.Option(50, min=2, help="uniform-suite environments per sweep setting."),
-    steps: int = typer.Option(600, min=1, help="Control steps per environment in the sweep."),
-    grid: Optional[str] = typer.Option(None, help="Sweep settings 'sampler:S,...;...' (default dpm++:3,5,10,20;ddim:10,20,50; DDIM-50 is always run)."),
-    sweep_out: Path = typer.Option(Path("runs/bench-infer"), help="Resumable sweep suites and the plot go here."),
-    workers: int = typer.Option(0, min=0, help="Worker processes of the sweep (0: all cores)."),
-    repeats: int = typer.Option(5, min=1, help="Timed calls per latency median."),
-    out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
-) -> None:
-    """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
-    from madp.eval.bench import bench_infer_all, format_table, parse_grid
-
-    r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
-                        repeats=repeats, workers=workers)
-    _show(format_table(r), r, out)
+_add_bench()
 
 
 def main(argv: Optional[List[str]] = None) -> None:

@@ -50,6 +50,16 @@ def user_message(app: typer.Typer, e: BaseException) -> str:
     return " ".join(msg.splitlines()[0].split())
 
 
+#: ``--ray`` of datagen and eval; given alone, main() supplies ``local`` (madp.io.ray_backend.RAY_LOCAL).
+RAY_HELP = ("Run the tasks on Ray: alone, a Ray started on this machine; 'auto': the cluster running here "
+            "(ray start); HOST:PORT or ray://HOST:10001: that cluster. The output directory must be on a "
+            "filesystem every node sees. Never changes the results. Needs madp[ray].")
+
+
+def _ray_option(help: str = RAY_HELP):
+    return typer.Option(None, "--ray", metavar="[ADDRESS]", help=help)
+
+
 def _optional_ray_value(args: List[str]) -> List[str]:
     """``--ray`` followed by nothing or by another option means ``--ray local`` (click has no options
     with an optional value)."""

@@ -119,13 +119,13 @@ def resolve_checkpoint(name: str, checkpoint: str | None) -> str:
     return str(path)
 
 
-def load_model(kind: str, path: str):
-    """The model of a checkpoint, loaded once per process."""
+def load_model(kind: str, path: str, device: str = "cpu"):
+    """The model of a checkpoint on ``device``, loaded once per process and device."""
     from madp.policies import load
 
-    key = (kind, str(path))
+    key = (kind, str(path), str(device))
     if key not in _models:
-        _models[key] = load(path, kind)[0]
+        _models[key] = load(path, kind, device)[0]
     return _models[key]
 
 
@@ -145,7 +145,7 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
     build = _factory(info)
     if not info.learned:
         return build()
-    model = load_model(info.kind, resolve_checkpoint(name, checkpoint))
+    model = load_model(info.kind, resolve_checkpoint(name, checkpoint), device)
     if not info.samples:
         return build(model, device)
     return build(model, info.mode, sampling, seed=seed, device=device)

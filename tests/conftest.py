@@ -61,6 +61,23 @@ def shared_params(paths: list, placeholder: str) -> list:
     return list(paths) or [placeholder]
 
 
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``cuda`` live in ``test_cuda*.py`` files (``scripts/gpu_paper.sh`` runs exactly
+    those, with ``-m cuda``) and are skipped, with the reason, where torch sees no CUDA GPU."""
+    cuda = [item for item in items if item.get_closest_marker("cuda")]
+    misplaced = [item.nodeid for item in cuda if not item.path.name.startswith("test_cuda")]
+    if misplaced:
+        raise pytest.UsageError(f"tests marked cuda must live in test_cuda*.py files: {misplaced}")
+    if not cuda:
+        return
+    import torch
+
+    if not torch.cuda.is_available():
+        skip = pytest.mark.skip(reason=f"needs a CUDA GPU: torch.cuda.is_available() is False (torch {torch.__version__})")
+        for item in cuda:
+            item.add_marker(skip)
+
+
 @pytest.fixture(scope="session")
 def vectors_dir() -> Path:
     return require_shared(VECTORS, "reference vectors")

@@ -3,12 +3,14 @@ samples (U0, X, O)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable, Iterator
 
 import numpy as np
 
 from madp.data_schema import Episode
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
+from madp.sim.launch import draw_launch
 from madp.sim.rollout import Hook, act_alone, run
 
 from .plan import DatagenConfig, ShardTask, episode_id, scenario_seed
@@ -72,6 +74,16 @@ def record_episode(
     )
 
 
+def episode_scenario(cfg: DatagenConfig, seed: int) -> Scenario:
+    """The scenario of a dataset episode: :meth:`Scenario.random` of its seed, the swarm then moved to
+    a start of ``cfg.launch`` drawn from the seed's second stream (uniform: unchanged)."""
+    scenario = Scenario.random(seed, cfg.params)
+    if cfg.launch == "uniform":
+        return scenario
+    rng = np.random.default_rng([seed, 0x1A])
+    return replace(scenario, robots_m=draw_launch(rng, cfg.launch, cfg.params.num_robots, cfg.params.world_size))
+
+
 def shard_episodes(
     cfg: DatagenConfig, task: ShardTask, on_sample: Callable[[], None] | None = None
 ) -> Iterator[Episode]:
@@ -79,7 +91,7 @@ def shard_episodes(
     remaining, k = task.num_samples, 0
     while remaining > 0:
         seed = scenario_seed(cfg.seed, task.split, task.index, k)
-        ep = record_episode(Scenario.random(seed, cfg.params), cfg, episode_id(task.split, task.index, k),
+        ep = record_episode(episode_scenario(cfg, seed), cfg, episode_id(task.split, task.index, k),
                             remaining, on_sample)
         remaining -= ep.num_steps
         k += 1

@@ -20,6 +20,7 @@ import numpy as np
 
 from madp.errors import SettingError
 from madp.sim import SimParams
+from madp.sim.launch import TRAINING_LAUNCHES
 
 SPLITS = ("train", "val", "test")
 SPLIT_FRACTIONS = {"val": 0.2, "test": 0.1}
@@ -39,6 +40,9 @@ class DatagenConfig:
     record_every: int = 5  # record every 5th simulation step (SPEC §3)
     max_steps: int = 2100  # an episode that has not converged by then ends
     params: SimParams = field(default_factory=SimParams)
+    launch: str = "uniform"
+    """Where each episode's swarm starts: ``uniform`` (anywhere, the default) or ``packed`` (boxes,
+    bands and clusters of a training distribution: :func:`madp.sim.launch.draw_launch`)."""
     policy: dict = field(default_factory=dict)
     """Empty: the expert drives (the default). Otherwise the learned policy that drives, for expert
     relabelling (DAgger): ``{"path", "sha256", "kind", "beta", "parent"}`` — the checkpoint, its
@@ -62,6 +66,8 @@ class DatagenConfig:
                              f"more than the {MAX_SHARDS_PER_SPLIT} a dataset's episode ids can number; "
                              "lower --n or raise --samples-per-shard")
         self.params.check_fits("num_robots/num_features/world_size")
+        if self.launch not in TRAINING_LAUNCHES:
+            raise SettingError("launch", f"expected one of {', '.join(TRAINING_LAUNCHES)}, got {self.launch!r}")
         if self.policy and not 0.0 <= float(self.policy.get("beta", -1)) <= 1.0:
             raise SettingError("beta", f"expected a probability in [0, 1], got {self.policy.get('beta')}")
 
@@ -70,6 +76,8 @@ class DatagenConfig:
         d["params"] = self.params.to_dict()
         if not self.policy:  # expert datasets keep the plan.json of before relabelling existed
             del d["policy"]
+        if self.launch == "uniform":  # and uniform launches that of before --launch existed
+            del d["launch"]
         return d
 
     @classmethod
@@ -92,6 +100,8 @@ class DatagenConfig:
             parts.append(f"--world-size {p.world_size}")
         if self.samples_per_shard != 512:
             parts.append(f"--samples-per-shard {self.samples_per_shard}")
+        if self.launch != "uniform":
+            parts.append(f"--launch {self.launch}")
         if self.policy:
             parts.append(f"--policy {self.policy['path']} --beta {self.policy['beta']:g} --max-steps {self.max_steps}")
         elif self.max_steps != 2100:

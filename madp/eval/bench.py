@@ -38,6 +38,16 @@ BASELINE = ("ddim", 50)
 SE_TARGET = 0.02
 
 
+def parse_presets(text: str) -> tuple[str, ...]:
+    """``"cpu,paper"`` -> ``("cpu", "paper")``: the presets whose latency is measured."""
+    from madp.models.config import PRESETS
+
+    names = tuple(p.strip() for p in text.split(",") if p.strip())
+    if not names or any(p not in PRESETS for p in names):
+        raise SettingError("presets", f"expected a comma-separated subset of {','.join(PRESETS)}, got {text!r}")
+    return names
+
+
 def parse_grid(text: str) -> dict[str, tuple[int, ...]]:
     """``"dpm++:5,10,20;ddim:10,20,50"`` -> ``{"dpm++": (5, 10, 20), "ddim": (10, 20, 50)}`` (DDIM-50 is
     always added). A one-line :class:`madp.errors.SettingError` on anything else."""
@@ -71,7 +81,7 @@ def _final_costs(suite_dir: Path, controller: str) -> tuple[np.ndarray, float]:
 
 
 def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[int, ...]], envs: int, steps: int,
-                      workers: int = 0, progress: bool = True) -> dict:
+                      workers: int = 0, progress: bool = True, device: str = "cpu") -> dict:
     """Run (or resume, or read) the sweep; returns the per-setting statistics and S* per sampler."""
     from .runner import EvalConfig, run_suite
 
@@ -80,7 +90,8 @@ def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[in
     for sampler, s in settings:
         controllers = ("madp", "madp_central") if (sampler, s) == BASELINE else ("madp",)
         cfg = EvalConfig(suite="uniform", out=str(sweep_out / f"{sampler}-{s}"), num_envs=envs, steps=steps,
-                         controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers)
+                         controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers,
+                         device=device)
         run_suite(cfg, "uniform", progress=progress)
         suite_dir = Path(cfg.out) / "uniform"
         costs[(sampler, s)], step_ms[(sampler, s)] = _final_costs(suite_dir, "madp")
@@ -142,18 +153,22 @@ def plot_cost_vs_steps(sweep: dict, path: Path) -> Path:
 def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs/bench-infer",
                     grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
                     repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
-                    progress: bool = True) -> dict:
-    """The whole ``madp bench infer`` (module docstring). Without a checkpoint (none given and none
-    shipped) the sweep is skipped and latency is reported for DDIM-50 only."""
+                    progress: bool = True, device: str = "cpu", sweep: bool = True) -> dict:
+    """The whole ``madp bench infer`` (module docstring) on ``device`` (the sweep's rollouts and the
+    latency). Without a checkpoint (none given and none shipped) the sweep is skipped and latency is
+    reported for DDIM-50 only; with ``sweep=False`` the sweep is skipped and latency is reported for
+    every setting of ``grid`` (DDIM-50 included)."""
     grid = grid or dict(DEFAULT_GRID)
-    out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None}
+    out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None, "device": device, "swept": sweep}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
     settings = [BASELINE]
-    if path:
+    if not sweep:
+        settings += [(smp, s) for smp, ks in grid.items() for s in ks if (smp, s) != BASELINE]
+    elif path:
         load(path, "madp")  # a wrong or missing file is a one-line error before hours of work
         sweep_out = Path(sweep_out)
         out["checkpoint"] = path
-        out["sweep"] = closed_loop_sweep(path, sweep_out, grid, envs, steps, workers, progress)
+        out["sweep"] = closed_loop_sweep(path, sweep_out, grid, envs, steps, workers, progress, device)
         out["plot"] = str(plot_cost_vs_steps(out["sweep"], sweep_out / "cost_vs_steps.png"))
         settings += [(smp, s) for smp, s in out["sweep"]["s_star"].items() if s is not None and (smp, s) != BASELINE]
     lat = []
@@ -161,7 +176,7 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         for mode in ("decentralized", "centralized"):
             base = None
             for smp, s in settings:
-                r = bench_infer(preset, mode, num_steps=s, sampler=smp, repeats=repeats, threads=threads)
+                r = bench_infer(preset, mode, num_steps=s, sampler=smp, repeats=repeats, threads=threads, device=device)
                 base = base or r["latency_s"]
                 lat.append({**r, "sampler": smp, "speedup_vs_ddim50": base / r["latency_s"]})
     out["latency"] = lat
@@ -176,7 +191,9 @@ def format_table(r: dict) -> list[str]:
     """The lines ``madp bench infer`` prints for a :func:`bench_infer_all` result."""
     lines: list[str] = []
     sw = r["sweep"]
-    if sw is None:
+    if sw is None and r.get("swept", True) is False:
+        lines.append("--no-sweep: latency of every --grid setting")
+    elif sw is None:
         lines.append("no trained MADP checkpoint: no closed-loop sweep (latency of DDIM-50 only)")
     else:
         b = sw["baseline"]
@@ -195,7 +212,8 @@ def format_table(r: dict) -> list[str]:
                      f"S* = {', '.join(f'{k}: {v}' for k, v in sw['s_star'].items())}; best: {r['best']['sampler']} "
                      f"S = {r['best']['steps']}; plot {r['plot']}")
     lines.append(f"{'preset':<7}{'mode':<15}{'sampler':<8}{'S':>4}{'latency ms':>12}{'vs DDIM-50':>12}"
-                 f"   (median, N = 32, 2 threads; paper: {r['paper_latency_s']} s on an RTX 3090)")
+                 f"   (median, N = 32, {'2 threads' if r.get('device', 'cpu') == 'cpu' else r['device']}; "
+                 f"paper: {r['paper_latency_s']} s on an RTX 3090)")
     for x in r["latency"]:
         lines.append(f"{x['preset']:<7}{x['mode']:<15}{x['sampler']:<8}{x['num_steps']:>4}{1e3 * x['latency_s']:>12.1f}"
                      f"{x['speedup_vs_ddim50']:>11.1f}x")

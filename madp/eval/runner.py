@@ -42,7 +42,7 @@ from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, a
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
-SETTING_DEFAULTS = {"fixed_noise": False, "video": 0}
+SETTING_DEFAULTS = {"fixed_noise": False, "video": 0, "device": "cpu"}
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,7 @@ class EvalConfig:
     cities: str | None = None
     record_every: int = 5
     record_samples: int = 4
+    device: str = "cpu"  # where the learned controllers' models run ("cpu", "cuda", "cuda:I")
 
     def __post_init__(self) -> None:
         if self.ray is not None:
@@ -85,7 +86,7 @@ class EvalConfig:
     def controller(self, name: str, spec: EnvSpec):
         """Controller ``name`` as this suite runs it (:func:`madp.controllers.make_controller`), MADP's
         noise seeded by the environment's seed."""
-        return make_controller(name, self.checkpoint(name), seed=spec.seed, sampling=self.sampling)
+        return make_controller(name, self.checkpoint(name), seed=spec.seed, sampling=self.sampling, device=self.device)
 
 
 def video_envs(envs: list[EnvSpec], k: int) -> list[EnvSpec]:
@@ -294,7 +295,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
                 "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
-                "env_seeds": [e.seed for e in envs]}
+                "env_seeds": [e.seed for e in envs], "device": cfg.device}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in CHECKPOINT_KINDS if getattr(cfg, k) and any(CONTROLLERS[c].kind == k for c in cfg.controllers)}
     cfg_file = suite_dir / "config.json"

@@ -13,6 +13,9 @@
 |         |                                                 | y ∈ [96, 352]                         |
 | scale   | N{n}_F{f} for n, f ∈ {16, 32, 64, 128}           | num_envs per (N, F)                   |
 | all     | every suite above                               |                                       |
+| symmetry | {line,square}_d4-{g}, g = 0..7                 | the launch suite's line and square    |
+|         | (not part of all)                               | environments and their 7 images under |
+|         |                                                 | the world's rotations and reflections |
 
 Seeds: an environment's scenario seed is a hash of (suite, group, index) with bit 62 set, and
 dataset seeds always have it clear (:mod:`madp.datagen.plan`), so evaluation never replays a
@@ -30,9 +33,12 @@ import numpy as np
 
 from madp.errors import InputError, SettingError
 from madp.sim import Scenario, SimParams
+from madp.sim.launch import D4_SIZE
 
 EVAL_SEED_BIT = 1 << 62
 SUITES = ("uniform", "sigma", "cities", "launch", "scale")
+EXTRA_SUITES = ("symmetry",)  # diagnostic suites, run by name only (not by ``all``)
+SYMMETRY_LAYOUTS = ("line", "square")
 SIGMA_RANGES = ((30, 40), (20, 30), (10, 20), (5, 10))
 LAUNCHES = {"uniform": None, "square": (115.25, 115.25, 217.25, 217.25), "line": (0.0, 96.0, 1024.0, 352.0)}
 SCALE_SIZES = (16, 32, 64, 128)
@@ -58,9 +64,13 @@ class EnvSpec:
     params: SimParams
     launch: str = "uniform"
     city_file: str = ""
+    d4: int = 0  # element of the world's symmetry group applied to the scenario (madp.sim.launch)
 
     @property
     def seed(self) -> int:
+        """The scenario seed; an image of the symmetry suite shares its launch environment's."""
+        if self.suite == "symmetry":
+            return eval_seed("launch", self.launch, self.index)
         return eval_seed(self.suite, self.group, self.index)
 
     @property
@@ -70,17 +80,21 @@ class EnvSpec:
 
     def scenario(self) -> Scenario:
         if not self.city_file:
-            return Scenario.random(self.seed, self.params, LAUNCHES[self.launch], name=f"{self.suite}/{self.key}")
+            base = Scenario.random(self.seed, self.params, LAUNCHES[self.launch])
+            return replace(base.d4_image(self.d4) if self.d4 else base, name=f"{self.suite}/{self.key}")
         from .cities import city_scenario
 
         return city_scenario(self.city_file, self.seed, self.params)[0]
 
 
 def suite_names(suite: str) -> list[str]:
-    """The suites ``suite`` names: itself, or every one for ``"all"``."""
-    if suite != "all" and suite not in SUITES:
-        raise SettingError("suite", f"expected one of {list(SUITES) + ['all']}, got {suite!r}")
-    return list(SUITES) if suite == "all" else [suite]
+    """The suites ``suite`` names: one, a comma-separated list (``uniform,cities``), or every one of
+    :data:`SUITES` for ``"all"`` (the :data:`EXTRA_SUITES` run by name only)."""
+    names = list(SUITES) if suite == "all" else [s.strip() for s in suite.split(",")]
+    if any(s not in SUITES + EXTRA_SUITES for s in names):
+        raise SettingError("suite", f"expected one of {list(SUITES) + ['all'] + list(EXTRA_SUITES)} or a "
+                                    f"comma-separated list, got {suite!r}")
+    return names
 
 
 def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = None) -> list[EnvSpec]:
@@ -98,6 +112,9 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
     if suite == "scale":
         return [EnvSpec(suite, f"N{n}_F{f}", i, replace(base, num_robots=n, num_features=f))
                 for n in SCALE_SIZES for f in SCALE_SIZES for i in range(num_envs)]
+    if suite == "symmetry":
+        return [EnvSpec(suite, f"{name}_d4-{g}", i, base, launch=name, d4=g)
+                for name in SYMMETRY_LAYOUTS for g in range(D4_SIZE) for i in range(num_envs)]
     if suite == "cities":
         from .cities import load_city_dir
 
@@ -106,4 +123,4 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
         if not files:
             raise InputError(f"{directory}: no city files (.csv, .geojson, .json) found")
         return [EnvSpec(suite, Path(f).name.split(".")[0], 0, base, city_file=str(f)) for f in files[:num_envs]]
-    raise SettingError("suite", f"expected one of {list(SUITES) + ['all']}, got {suite!r}")
+    raise SettingError("suite", f"expected one of {list(SUITES) + ['all'] + list(EXTRA_SUITES)}, got {suite!r}")

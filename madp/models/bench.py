@@ -1,9 +1,8 @@
 """Micro-benchmarks of the models on random inputs (no data, no simulator).
 
-* :func:`bench_train_step`: training samples/s (median over timed steps after warm-up) for MADP or
-  LPAC-K3; for MADP also the FLOPs of one training step (forward + backward, counted by
-  ``torch.utils.flop_counter.FlopCounterMode``), this machine's float32 matmul FLOP/s measured in the
-  same run, and the achieved fraction of it.
+* :func:`matmul_flops_per_s`, :func:`_count_flops`: this machine's float32 matmul FLOP/s and the
+  FLOPs of a function (``torch.utils.flop_counter``), for ``madp bench train``
+  (:mod:`madp.training.bench`), which times real training steps.
 * :func:`bench_infer`: median latency of one MADP control step (CNN + encoder once, decoder S times)
   in decentralized or centralized-masked mode.
 
@@ -23,7 +22,7 @@ import torch
 from .config import lpac_config, madp_config
 from .madp import MADP
 
-__all__ = ["bench_train_step", "bench_infer", "matmul_flops_per_s", "random_swarm"]
+__all__ = ["bench_infer", "matmul_flops_per_s", "random_swarm"]
 
 
 def random_swarm(batch: int, num_robots: int, world: float = 1024.0, generator: torch.Generator | None = None,
@@ -107,67 +106,6 @@ def _count_flops(fn) -> int:
     return int(counter.get_total_flops())
 
 
-def bench_train_step(model_name: str = "madp", preset: str = "cpu", batch_size: int = 32, num_robots: int = 32,
-                     steps: int = 5, warmup: int = 2, device: torch.device | str = "cpu",
-                     measure_matmul: bool = True, seed: int = 0, threads: int | None = None) -> dict[str, Any]:
-    """Training throughput of one model on random data (AdamW step included).
-
-    Returns a dict with ``samples_per_s`` (median), ``step_s`` (median seconds per step),
-    ``params``; for MADP also ``flops_per_step`` (forward + backward, FlopCounterMode: matmuls,
-    convolutions and attention), ``achieved_flops_per_s``, ``matmul_flops_per_s`` (this machine,
-    measured in the same run) and ``fraction_of_matmul``. ``threads`` sets torch's intra-op threads
-    for the run (None: current setting).
-    """
-    with _threads(threads):
-        return _bench_train_step(model_name, preset, batch_size, num_robots, steps, warmup, device,
-                                 measure_matmul, seed)
-
-
-def _bench_train_step(model_name: str, preset: str, batch_size: int, num_robots: int, steps: int, warmup: int,
-                      device: torch.device | str, measure_matmul: bool, seed: int) -> dict[str, Any]:
-    torch.manual_seed(seed)
-    g = torch.Generator().manual_seed(seed)
-    if model_name == "madp":
-        model = MADP(madp_config(preset)).to(device)
-    elif model_name == "lpac":
-        from .lpac import LPAC  # imports torch_geometric
-
-        model = LPAC(lpac_config(preset)).to(device)
-    else:
-        raise ValueError("model_name must be 'madp' or 'lpac'")
-    model.train()
-    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
-    obs, pos, act = random_swarm(batch_size, num_robots, generator=g, device=device)
-
-    def step() -> None:
-        opt.zero_grad(set_to_none=True)
-        loss = model.loss(obs, pos, act)
-        loss.backward()
-        opt.step()
-
-    times = _timed(step, warmup, steps, device)
-    step_s = statistics.median(times)
-    out: dict[str, Any] = {
-        "model": model_name, "preset": preset, "batch_size": batch_size, "num_robots": num_robots,
-        "threads": torch.get_num_threads(), "device": str(device), "params": model.num_parameters(),
-        "steps": steps, "step_s": step_s, "samples_per_s": batch_size / step_s,
-    }
-    if model_name == "madp":
-        def fwd_bwd() -> None:
-            opt.zero_grad(set_to_none=True)
-            model.loss(obs, pos, act).backward()
-
-        flops = _count_flops(fwd_bwd)
-        opt.zero_grad(set_to_none=True)
-        out["flops_per_step"] = flops
-        out["achieved_flops_per_s"] = flops / step_s
-        if measure_matmul:
-            mm = matmul_flops_per_s(device=device)
-            out["matmul_flops_per_s"] = mm
-            out["fraction_of_matmul"] = flops / step_s / mm
-    return out
-
-
 def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int = 50, num_robots: int = 32,
                 repeats: int = 5, warmup: int = 1, eta: float = 0.0, layout: str = "uniform",
                 dedupe: bool = True, device: torch.device | str = "cpu", seed: int = 0,
@@ -181,7 +119,7 @@ def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int
     r_c of everyone, the worst case for decentralized execution, M = N). ``dedupe`` is passed to
     :meth:`MADP.sample_decentralized` (False: every robot's neighbourhood is computed, even when
     several coincide). Also reports the largest and mean neighbourhood size (tokens per
-    neighbourhood batch in decentralized mode). ``threads`` as in :func:`bench_train_step`.
+    neighbourhood batch in decentralized mode). ``threads``: torch's intra-op threads for the run (None: the current setting).
     """
     with _threads(threads):
         return _bench_infer(preset, mode, num_steps, num_robots, repeats, warmup, eta, layout, dedupe, device, seed,
@@ -223,35 +161,14 @@ def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeat
     }
 
 
-def bench_train_all(steps: int = 3, paper_batch: int = 196) -> list[dict]:
-    """What ``madp bench train`` measures: :func:`bench_train_step` of both models and presets
-    (``steps`` timed steps per cpu configuration, one fewer per paper one)."""
-    return [bench_train_step(m, p, b, steps=steps if p == "cpu" else max(1, steps - 1), warmup=1)
-            for m, p, b in (("madp", "cpu", 32), ("lpac", "cpu", 32), ("lpac", "paper", 32), ("madp", "paper", paper_batch))]
-
-
-def format_train_table(rows: list[dict]) -> list[str]:
-    """The lines ``madp bench train`` prints for :func:`bench_train_all`'s rows."""
-    lines = [f"{'model':<6}{'preset':<7}{'batch':>6}{'samples/s':>11}{'GFLOP/step':>12}  {'share of matmul peak'}"]
-    for r in rows:
-        frac = f"{100 * r['fraction_of_matmul']:.0f}% of {r['matmul_flops_per_s'] / 1e9:.0f} GFLOP/s" if "fraction_of_matmul" in r else "-"
-        gf = f"{r['flops_per_step'] / 1e9:.1f}" if "flops_per_step" in r else "-"
-        lines.append(f"{r['model']:<6}{r['preset']:<7}{r['batch_size']:>6}{r['samples_per_s']:>11.1f}{gf:>12}  {frac}")
-    return lines
-
-
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description="madp model micro-benchmarks")
     p.add_argument("--preset", default="cpu")
-    p.add_argument("--batch-size", type=int, default=32)
-    p.add_argument("--steps", type=int, default=5)
     p.add_argument("--num-robots", type=int, default=32)
     p.add_argument("--threads", type=int, default=None)
     args = p.parse_args(argv)
     kw = dict(num_robots=args.num_robots, threads=args.threads)
     results = [
-        bench_train_step("madp", args.preset, args.batch_size, steps=args.steps, **kw),
-        bench_train_step("lpac", args.preset, args.batch_size, steps=args.steps, **kw),
         bench_infer(args.preset, "decentralized", **kw),
         bench_infer(args.preset, "decentralized", layout="square", **kw),
         bench_infer(args.preset, "decentralized", layout="square", dedupe=False, **kw),

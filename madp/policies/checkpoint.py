@@ -41,16 +41,25 @@ def load(path: str | Path, expect: str, device: str = "cpu"):
 
 
 def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module, dict]:
-    """Build the model a policy file describes and load its weights. Returns (model in eval mode, meta)."""
+    """Build the model a policy file describes and load its weights. Returns (model in eval mode, meta).
+
+    ``path`` may also name a checkpoint split into float16 parts (:mod:`madp.policies.parts`: its
+    index or a part); weights of any float dtype load into the float32 model."""
+    from .parts import read_parts
+
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            metadata = dict(f.metadata() or {})
-    except Exception as e:  # safetensors raises its own error types for truncated/garbled files
-        raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
-    state = read_weights(path, device)
+    joined = read_parts(path, device)  # a checkpoint split into float16 parts (index or a part), else None
+    if joined is not None:
+        metadata, state = joined
+    else:
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: checkpoint not found")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                metadata = dict(f.metadata() or {})
+        except Exception as e:  # safetensors raises its own error types for truncated/garbled files
+            raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+        state = read_weights(path, device)
     kind = metadata.get("kind")
     if kind not in ("madp", "lpac") or "config" not in metadata:
         raise InputError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")

@@ -23,9 +23,11 @@ if TYPE_CHECKING:
     from madp.sim import CoverageEnv
 
 
-def noise_generator(seed: int, device: torch.device | str = "cpu") -> torch.Generator:
-    """The sampling-noise generator of one episode, seeded by its scenario seed."""
-    g = torch.Generator(device=device)
+def noise_generator(seed: int) -> torch.Generator:
+    """The sampling-noise generator of one episode, seeded by its scenario seed. It lives on the CPU
+    whatever device the policy runs on: the noise is drawn there and moved to the device, so a seed
+    gives the same noise on every device (results differ only by the device's float rounding)."""
+    g = torch.Generator()
     g.manual_seed(int(seed) & ((1 << 63) - 1))
     return g
 
@@ -79,38 +81,42 @@ class MADPPolicy:
         self.reset(seed)
 
     def reset(self, seed: int) -> None:
-        self.generator = noise_generator(seed, self.device)
+        self.generator = noise_generator(seed)
         self._fixed = {}
 
-    def _initial_noise(self, g: torch.Generator, shape: tuple[int, ...]) -> torch.Tensor:
-        """``U_K`` for one swarm: a fresh draw from ``g``, or with ``fixed_noise`` the episode's first
-        draw from ``g`` (kept per generator: one generator per environment and episode)."""
-        if not self.fixed_noise:
-            return torch.randn(shape, generator=g, device=self.device)
-        if id(g) not in self._fixed:
-            self._fixed[id(g)] = torch.randn(shape, generator=g, device=self.device)
-        return self._fixed[id(g)]
+    def _noise(self, g: torch.Generator, shape: tuple[int, ...], fixed: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The noise of one sampling call from the CPU generator ``g``, on the policy's device:
+        ``U_K`` of ``shape`` (with ``fixed``: the episode's first draw, kept per generator: one
+        generator per environment and episode), then, when the sampler is stochastic (DDIM with
+        η > 0), one fresh draw per sampler step ``[S, *shape]``; in the order the model would draw them."""
+        if not fixed:
+            first = torch.randn(shape, generator=g)
+        else:
+            if id(g) not in self._fixed:
+                self._fixed[id(g)] = torch.randn(shape, generator=g)
+            first = self._fixed[id(g)]
+        steps = torch.stack([torch.randn(shape, generator=g) for _ in range(self.num_steps)]) if self.stochastic else None
+        return first.to(self.device), None if steps is None else steps.to(self.device)
 
-    def _sample(self, obs: torch.Tensor, pos: torch.Tensor, **noise) -> torch.Tensor:
+    def _sample(self, obs: torch.Tensor, pos: torch.Tensor, noise: torch.Tensor, step_noise: torch.Tensor | None) -> torch.Tensor:
         fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
-        return fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, **noise)
+        return fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
         """``num_samples`` independent swarm actions [M, N, 2] (m/s) for the current state.
 
-        ``generator`` (default: the policy's own) lets a caller draw extra samples, e.g. for
-        visualisation, without changing the noise the rollout itself uses."""
+        ``generator`` (a CPU generator; default: the policy's own) lets a caller draw extra samples,
+        e.g. for visualisation, without changing the noise the rollout itself uses."""
         own = generator is None
         generator = generator or self.generator
         obs = torch.from_numpy(env.observations()).to(self.device)
         pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
         obs = obs[None].expand(num_samples, *obs.shape)
         pos = pos[None].expand(num_samples, *pos.shape)
-        noise = {"generator": generator}
-        if own and self.fixed_noise and num_samples == 1:
-            noise["noise"] = self._initial_noise(generator, (1, env.num_robots, self.model.config.action_dim))
-        u = self.model.denormalize_actions(self._sample(obs, pos, **noise)).double().cpu().numpy()
+        shape = (num_samples, env.num_robots, self.model.config.action_dim)
+        noise, steps = self._noise(generator, shape, own and self.fixed_noise and num_samples == 1)
+        u = self.model.denormalize_actions(self._sample(obs, pos, noise, steps)).double().cpu().numpy()
         return np.stack([clip_speed(x, env.params.max_speed_mps) for x in u])
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
@@ -120,19 +126,13 @@ class MADPPolicy:
     def act_batch(self, envs: list[CoverageEnv], generators: list[torch.Generator]) -> np.ndarray:
         """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, sampled as one batch.
 
-        Environment b's noise comes from ``generators[b]`` in the order a lone :meth:`sample` would
-        draw it (U_K, then one draw per step when the sampler is stochastic: DDIM with η > 0), so
-        batching changes only float rounding."""
-        def draws(g: torch.Generator, shape) -> tuple[torch.Tensor, torch.Tensor | None]:
-            first = self._initial_noise(g, shape)
-            steps = (torch.stack([torch.randn(shape, generator=g, device=self.device) for _ in range(self.num_steps)])
-                     if self.stochastic else None)
-            return first, steps
-
+        Environment b's noise comes from ``generators[b]`` (CPU generators) in the order a lone
+        :meth:`sample` would draw it (U_K, then one draw per step when the sampler is stochastic:
+        DDIM with η > 0), so batching changes only float rounding."""
         obs, pos = swarm_tensors(envs, self.device)
         shape = (1, pos.shape[1], self.model.config.action_dim)
-        noise = [draws(g, shape) for g in generators]
+        noise = [self._noise(g, shape, self.fixed_noise) for g in generators]
         first = torch.cat([n[0] for n in noise])
         steps = torch.cat([n[1] for n in noise], dim=1) if self.stochastic else None
-        u = self.model.denormalize_actions(self._sample(obs, pos, noise=first, step_noise=steps)).double().cpu().numpy()
+        u = self.model.denormalize_actions(self._sample(obs, pos, first, steps)).double().cpu().numpy()
         return np.stack([clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])

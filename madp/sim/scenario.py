@@ -26,6 +26,7 @@ from madp.errors import InputError
 from madp.io.atomic import write_text_atomic
 
 from .idf import importance_map, random_features
+from .launch import d4_points
 from .params import SimParams
 
 BORDER_EPS_M = 1e-4
@@ -66,6 +67,15 @@ class Scenario:
         x0, y0, x1, y1 = launch if launch is not None else (BORDER_EPS_M, BORDER_EPS_M, w - BORDER_EPS_M, w - BORDER_EPS_M)
         robots = np.column_stack([rng.uniform(x0, x1, params.num_robots), rng.uniform(y0, y1, params.num_robots)])
         return cls(feats, robots, params, name=name, seed=seed)
+
+    def d4_image(self, g: int) -> "Scenario":
+        """The image of this scenario under element ``g`` of the square world's symmetry group
+        (:func:`madp.sim.launch.d4_points`): feature means and robots moved, σ and peaks kept."""
+        w = float(self.params.world_size)
+        features = np.array(self.features, dtype=np.float64, copy=True)
+        features[:, :2] = d4_points(features[:, :2], g, w)
+        return replace(self, features=features, robots_m=d4_points(self.robots_m, g, w),
+                       name=f"{self.name}@d4-{g}" if self.name else f"d4-{g}")
 
     # --- JSON ------------------------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -20,20 +20,14 @@ identity. Rounding of positions to cells can differ at exact ties only (measure 
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import Tensor
 
+from madp.sim.launch import D4_SIZE, d4_matrix
+
 __all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "AUGMENTATIONS"]
 
-D4_SIZE = 8
 AUGMENTATIONS = ("none", "d4")
-
-
-def d4_matrix(g: int) -> np.ndarray:
-    """``A [2, 2]`` of element g (module docstring)."""
-    a = np.array([[0.0, 1.0], [1.0, 0.0]]) if g & 1 else np.eye(2)
-    return np.diag([-1.0 if g & 2 else 1.0, -1.0 if g & 4 else 1.0]) @ a
 
 
 def _vectors(v: Tensor, g: int) -> Tensor:

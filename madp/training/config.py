@@ -48,9 +48,11 @@ class TrainConfig:
     log_every: int = 10
     max_steps_per_epoch: int = 0  # 0: the whole split
     stop_after_steps: int = 0  # stop (after checkpointing) once this many steps are done; 0: never
+    stop_after_minutes: float = 0.0  # stop (after checkpointing) at the first step after this many minutes of fit(); 0: never
     augment: str = "none"  # none | d4 (training samples only; see madp.training.augment)
     init: str = ""  # start from this policy.safetensors' weights (same model and preset), e.g. for DAgger rounds
     edge_weight: str = "binary"  # LPAC-K3's communication graph: binary (the library's) | gaussian
+    compile: bool = False  # MADP through torch.compile (inductor): faster steps after a compile at the start
 
     def __post_init__(self) -> None:
         if self.model not in ("madp", "lpac"):
@@ -78,8 +80,12 @@ class TrainConfig:
                                   or not all(math.isfinite(w) and w > 0 for w in self.data_weights)):
             raise SettingError("data_weights", f"expected {1 + len(self.more_data)} positive numbers (one per dataset), "
                                                f"got {list(self.data_weights)}")
+        if self.compile and self.model != "madp":
+            raise SettingError("compile", message="compile: only MADP compiles (torch_geometric's scatter in LPAC-K3 does not trace)")
         if self.edge_weight not in ("binary", "gaussian"):
             raise SettingError("edge_weight", f"expected binary or gaussian, got {self.edge_weight!r}")
+        if not (math.isfinite(self.stop_after_minutes) and self.stop_after_minutes >= 0):
+            raise SettingError("stop_after_minutes", f"expected a non-negative number, got {self.stop_after_minutes}")
         if not (self.lr > 0 and math.isfinite(self.lr)):
             raise SettingError("lr", f"expected a positive learning rate, got {self.lr}")
 

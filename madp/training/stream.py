@@ -184,18 +184,29 @@ def collate_swarms(samples: list[dict]) -> dict:
     """A batch of samples: stacked as torch's default collate does when they share N; otherwise
     padded to the largest N (``obs``, ``pos_m``, ``actions`` zero there) with ``valid [B, N]`` bool
     marking the real robots. Only the last batches of a stream mix sizes
-    (:meth:`ShardStream._batched_by_size`)."""
+    (:meth:`ShardStream._batched_by_size`).
+
+    ``obs [B, N, C, S, S]`` comes with the channels innermost in memory (strides of a
+    ``[B, N, S, S, C]`` array), the layout the perception CNN computes in: the loader workers pay
+    for the transposition, not the training process. Only the memory layout differs from a plain
+    stack; the values are the same."""
     sizes = [len(s["pos_m"]) for s in samples]
-    if len(set(sizes)) == 1:
-        return default_collate(samples)
     b, n = len(samples), max(sizes)
-    out = {key: samples[0][key].new_zeros((b, n, *samples[0][key].shape[1:])) for key in ("obs", "pos_m", "actions")}
+    c, h, w = samples[0]["obs"].shape[1:]
+    obs = samples[0]["obs"].new_zeros((b, n, h, w, c))
+    for i, (s, k) in enumerate(zip(samples, sizes)):
+        obs[i, :k] = s["obs"].permute(0, 2, 3, 1)
+    if len(set(sizes)) == 1:
+        out = default_collate([{k: v for k, v in s.items() if k != "obs"} for s in samples])
+        out["obs"] = obs.permute(0, 1, 4, 2, 3)
+        return out
+    out = {key: samples[0][key].new_zeros((b, n, *samples[0][key].shape[1:])) for key in ("pos_m", "actions")}
     valid = torch.zeros(b, n, dtype=torch.bool)
     for i, (s, k) in enumerate(zip(samples, sizes)):
         for key in out:
             out[key][i, :k] = s[key]
         valid[i, :k] = True
-    out.update(valid=valid, episode_id=torch.tensor([s["episode_id"] for s in samples]),
+    out.update(obs=obs.permute(0, 1, 4, 2, 3), valid=valid, episode_id=torch.tensor([s["episode_id"] for s in samples]),
                step=torch.tensor([s["step"] for s in samples]))
     return out
 

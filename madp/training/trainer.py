@@ -46,11 +46,19 @@ from .config import TrainConfig, learning_rate
 from .stream import ShardStream, StreamPosition, collate_swarms
 
 
+#: The optimizer implementation of :func:`make_optimizer` (measured with ``madp bench train``).
+DEFAULT_OPTIMIZER_IMPL = "fused"
+
+
 # --- environment ---------------------------------------------------------------------------------
 def setup_distributed() -> tuple[int, int, torch.device]:
-    """(rank, world_size, device). Under torchrun: NCCL on GPUs, gloo on CPU."""
+    """(rank, world_size, device). Under torchrun: NCCL on GPUs, gloo on CPU. A process group the
+    caller initialised already (e.g. a single-rank NCCL group) is used as it is: training then runs
+    through DDP whatever its size."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
+    if dist.is_initialized():
+        world, rank = dist.get_world_size(), dist.get_rank()
     if torch.cuda.is_available():
         local = int(os.environ.get("LOCAL_RANK", "0"))
         torch.cuda.set_device(local)
@@ -94,6 +102,21 @@ def step_noise(raw, generator: torch.Generator, batch: dict, parts: int, num_rob
     return k.view(parts, b), noise.view(parts, b, n, -1)
 
 
+def make_optimizer(cfg: TrainConfig, params, impl: str = "default") -> torch.optim.Optimizer:
+    """AdamW (or Adam, ``cfg.optimizer``) at ``cfg.lr`` and ``cfg.weight_decay``.
+
+    ``impl``: ``loop`` (one parameter at a time: torch's default on CPU), ``foreach`` (one op over
+    all parameters per update term) or ``fused`` (one kernel per parameter group); ``default`` is
+    the one ``madp train`` uses."""
+    if impl == "default":
+        impl = DEFAULT_OPTIMIZER_IMPL
+    flags = {"loop": dict(foreach=False), "foreach": dict(foreach=True), "fused": dict(fused=True)}
+    if impl not in flags:
+        raise ValueError(f"optimizer implementation: expected one of {sorted(flags)} or default, got {impl!r}")
+    opt_cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
+    return opt_cls(params, lr=cfg.lr, weight_decay=cfg.weight_decay, **flags[impl])
+
+
 def batch_device(model: torch.nn.Module) -> torch.device:
     return next(model.parameters()).device
 
@@ -121,6 +144,7 @@ class Trainer:
     def __init__(self, cfg: TrainConfig, resume: bool = False, progress: bool = True):
         self.cfg = cfg
         self.rank, self.world, self.device = setup_distributed()
+        self.ddp = dist.is_initialized()  # torchrun with several ranks, or a group the caller made
         self.is_main = self.rank == 0
         self.progress = progress and self.is_main
         self.out = Path(cfg.out)
@@ -148,13 +172,14 @@ class Trainer:
             self._init_from(Path(cfg.init), load_weights=not resume)
         self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
                                   torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
-        opt_cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
-        self.opt = opt_cls(self.raw.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.opt = make_optimizer(cfg, self.raw.parameters())
         self.ema = EMA(self.raw, cfg.ema_decay) if cfg.model == "madp" else None
         self.model = self.raw
-        if self.world > 1:
+        if self.ddp:
             self.model = torch.nn.parallel.DistributedDataParallel(
                 self.raw, device_ids=[self.device.index] if self.device.type == "cuda" else None)
+        if cfg.compile:  # the training forward only; validation and checkpoints use the plain module
+            self.model = torch.compile(self.model)
         self.train_data = ShardStream(cfg.datasets, self.manifests, "train", cfg.seed, cfg.batch_size, cfg.buffer_size,
                                       self.rank, self.world, augment=cfg.augment, weights=cfg.weights)
         self._refuse_empty_epochs()
@@ -359,9 +384,25 @@ class Trainer:
         """Updates in the whole run if it is not stopped early (the horizon of the lr schedule)."""
         return sum(self._epoch_batches(e) for e in range(self.cfg.epochs)) // self.cfg.grad_accum
 
+    def _stop_reason(self, t_fit: float) -> str | None:
+        """Why the run stops at this step (``stop_after_steps``, ``stop_after_minutes`` counted from
+        :meth:`fit`'s start in this process), or None. Under DDP rank 0's clock decides for all."""
+        cfg = self.cfg
+        if cfg.stop_after_steps and self.step >= cfg.stop_after_steps:
+            return "stop_after_steps"
+        if not cfg.stop_after_minutes:
+            return None
+        late = time.monotonic() - t_fit >= 60.0 * cfg.stop_after_minutes
+        if self.ddp:
+            flag = torch.tensor(float(late), device=self.device)
+            dist.broadcast(flag, src=0)
+            late = bool(flag)
+        return "stop_after_minutes" if late else None
+
     def fit(self) -> dict:
         cfg = self.cfg
         stop_reason = "epochs"
+        t_fit = time.monotonic()
         total_steps = self.planned_steps() if cfg.lr_schedule != "constant" else 0
         if cfg.model == "lpac" and self.step == 0 and self.is_main:
             self._log({"step": 0, "epoch": 0, **self.dead_units()})  # the initial health, to compare with
@@ -394,13 +435,13 @@ class Trainer:
                 part = self.rank * accum + micro
                 draws = None if step_draws is None else (step_draws[0][part], step_draws[1][part])
                 last = micro == accum - 1
-                sync = self.model.no_sync() if self.world > 1 and not last else nullcontext()
+                sync = self.model.no_sync() if self.ddp and not last else nullcontext()
                 with sync:  # DDP averages the gradients over ranks at the step's last micro-batch
                     loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device)
                     (loss / accum).backward()
                 self.batches_done += 1
                 seen += batch["obs"].shape[0] * self.world
-                if self.world > 1:
+                if self.ddp:
                     self.seen_ids.update(zip(batch["episode_id"].tolist(), batch["step"].tolist()))
                 loss_sum += float(loss.detach())
                 if not last:
@@ -416,19 +457,19 @@ class Trainer:
                 loss_v = loss_sum / accum
                 if not math.isfinite(loss_v):
                     raise FloatingPointError(f"training loss became {loss_v} at step {self.step}")
-                if self.step % cfg.log_every == 0 or self.batches_done == batches:
+                stop = self._stop_reason(t_fit) if self.batches_done % unit == 0 else None
+                if self.step % cfg.log_every == 0 or self.batches_done == batches or stop:  # a stopped run logs its last step
                     now = time.perf_counter()
                     rate = seen / max(now - t_last, 1e-9)
                     self._log({"step": self.step, "epoch": self.epoch, "loss": loss_v,
                                "lr": self.opt.param_groups[0]["lr"], "samples_per_s": rate})
                     t_last, seen = now, 0
                     bar.update(self.batches_done, loss_v, rate)
-                if self.batches_done % (cfg.checkpoint_every * unit) == 0:
+                if stop or self.batches_done % (cfg.checkpoint_every * unit) == 0:
                     self._save("latest")
-                if cfg.stop_after_steps and self.step >= cfg.stop_after_steps and self.batches_done % unit == 0:
-                    self._save("latest")
+                if stop:
                     bar.close()
-                    return {"stopped": "stop_after_steps", "step": self.step}
+                    return {"stopped": stop, "step": self.step}
             bar.close()
             val = self.validate()
             improved = val < self.best_val - cfg.min_delta
@@ -447,7 +488,7 @@ class Trainer:
             if self.bad_epochs >= cfg.patience:
                 stop_reason = f"early stop: no improvement > {cfg.min_delta} for {cfg.patience} epochs"
                 break
-        if self.world > 1:
+        if self.ddp:
             self._check_sync()
         return {"stopped": stop_reason, "step": self.step, "epoch": self.epoch, "best_val_loss": self.best_val}
 

@@ -55,3 +55,29 @@ def test_sweep_s_star_plot_and_latency(tmp_path, checkpoints):
 
 def test_bench_infer_cli_bad_grid_is_one_line(tmp_path):
     assert_one_line(*cli("bench", "infer", "--grid", "euler:3", "--sweep-out", tmp_path), "--grid")
+
+
+def test_no_sweep_times_every_grid_setting_on_the_device():
+    r = bench_infer_all(None, "unused", {"dpm++": (2,)}, repeats=1, presets=("cpu",), sweep=False, device="cpu")
+    assert r["sweep"] is None and r["device"] == "cpu"
+    assert sorted((x["mode"], x["sampler"], x["num_steps"], x["device"]) for x in r["latency"]) == [
+        (m, s, k, "cpu") for m in ("centralized", "decentralized") for s, k in (("ddim", 50), ("dpm++", 2))]
+
+
+@pytest.mark.parametrize("args,needle", [
+    (("bench", "infer", "--presets", "gpu"), "--presets"),
+    (("bench", "infer", "--device", "tpu", "--no-sweep"), "--device"),
+    (("eval", "--device", "cuda:x"), "--device"),
+    (("eval", "--suite", "uniform,moon"), "--suite"),
+    (("rollout", "--scenario", "s.json", "--device", "mps"), "--device"),
+])
+def test_device_presets_and_suite_lists_are_checked_in_one_line(tmp_path, args, needle):
+    assert_one_line(*cli(*args, "--out", tmp_path / "o"), needle)
+
+
+def test_eval_on_a_cuda_device_this_machine_lacks_is_one_line(tmp_path):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU")
+    assert_one_line(*cli("eval", "--device", "cuda", "--out", tmp_path), "--device cuda", "no CUDA GPU")

@@ -5,23 +5,7 @@ import pytest
 import torch
 
 from madp.models import LPAC, MADP, lpac_config, madp_config
-from madp.models.bench import bench_infer, bench_train_step, random_swarm
-
-
-def test_train_step_report_is_consistent_and_flops_scale_with_the_batch():
-    """samples/s is batch / step time, the parameter count is the model's, and the counted FLOPs
-    of a training step are exactly proportional to the batch (every counted op is per sample):
-    fails if a report field is derived wrongly or the counter sees only part of the batch."""
-    r2 = bench_train_step("madp", "cpu", batch_size=2, num_robots=4, steps=1, warmup=0, measure_matmul=False)
-    r4 = bench_train_step("madp", "cpu", batch_size=4, num_robots=4, steps=1, warmup=0, measure_matmul=False)
-    assert r2["params"] == sum(p.numel() for p in MADP(madp_config("cpu")).parameters())
-    for r in (r2, r4):
-        assert r["samples_per_s"] == pytest.approx(r["batch_size"] / r["step_s"])
-        assert r["achieved_flops_per_s"] == pytest.approx(r["flops_per_step"] / r["step_s"])
-    assert r4["flops_per_step"] == 2 * r2["flops_per_step"] > 0
-    rl = bench_train_step("lpac", "cpu", batch_size=2, num_robots=4, steps=1, warmup=0)
-    assert rl["params"] == sum(p.numel() for p in LPAC(lpac_config("cpu")).parameters())
-    assert rl["samples_per_s"] == pytest.approx(2 / rl["step_s"])
+from madp.models.bench import bench_infer, random_swarm
 
 
 def test_infer_report_neighbourhoods():

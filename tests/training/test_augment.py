@@ -37,11 +37,7 @@ def test_transformed_sample_equals_sample_of_transformed_scenario(scenario, g):
     """Fails if a channel is moved the wrong way, if the neighbour offsets keep their old sign or
     axis, or if positions/actions are not rotated with the maps (observations after a few expert
     steps, so the robots' sensed maps and the expert's actions take part too)."""
-    a = d4_matrix(g)
-    c = scenario.params.world_size / 2.0
-    feats = scenario.features.copy()
-    feats[:, :2] = (feats[:, :2] - c) @ a.T + c
-    moved = Scenario(feats, (scenario.robots_m - c) @ a.T + c, scenario.params)
+    moved = scenario.d4_image(g)
     for (o, x, u), (o2, x2, u2) in zip(expert_samples(scenario, 4), expert_samples(moved, 4)):
         to, tx, tu = transform_sample(torch.from_numpy(o), torch.from_numpy(x), torch.from_numpy(u), g,
                                       scenario.params.world_size)

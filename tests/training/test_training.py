@@ -15,6 +15,7 @@ from safetensors.torch import load_file
 from madp.data_schema.dataset import open_dataset
 from madp.datagen import DatagenConfig, run_datagen
 from madp.errors import InputError, SettingError
+from madp.models import MADP, madp_config
 from madp.sim import SimParams
 from madp.training import ShardStream, StreamPosition, load_policy, resolve, train
 from madp.training.config import learning_rate
@@ -160,6 +161,46 @@ def test_torchrun_two_cpu_processes_stay_in_sync_and_equal_one_process(dataset, 
     assert distance(ddp, single("accum", 2)) < 1e-7  # measured: 0.0
     # other batches (one worker's stream at a time) and other noise: the comparison tells runs apart
     assert distance(ddp, single("plain", 1)) > 1e-6  # measured: 2.7e-5 after 6 warm-up steps
+
+
+def test_a_process_group_made_by_the_caller_trains_through_ddp(dataset, tmp_path):
+    """A single-rank gloo group initialised before ``train`` (what the NCCL test of a one-GPU machine
+    does, tests/training/test_cuda_training.py): the run goes through DDP (the closing rank check is
+    logged) and trains exactly as the plain run."""
+    import torch.distributed as dist
+
+    kw = dict(data=str(dataset), epochs=1, batch_size=8, num_workers=0, val_samples=8, max_steps_per_epoch=3,
+              lr=1e-3, warmup_steps=0)
+    dist.init_process_group("gloo", init_method=f"file://{tmp_path / 'store'}", rank=0, world_size=1)
+    try:
+        with one_torch_thread():
+            train(resolve("madp", "cpu", out=str(tmp_path / "ddp"), **kw), progress=False)
+    finally:
+        assert not dist.is_initialized()  # train() ends the group it trained in
+    with one_torch_thread():
+        train(resolve("madp", "cpu", out=str(tmp_path / "plain"), **kw), progress=False)
+    sync = [d for d in map(json.loads, (tmp_path / "ddp" / "metrics.jsonl").read_text().splitlines())
+            if "ddp_param_checksums" in d]
+    assert len(sync) == 1 and len(sync[0]["ddp_param_checksums"]) == 1
+    assert "ddp_param_checksums" not in (tmp_path / "plain" / "metrics.jsonl").read_text()
+    ddp = load_file(str(tmp_path / "ddp" / "checkpoints" / "latest" / "model.safetensors"))
+    plain = load_file(str(tmp_path / "plain" / "checkpoints" / "latest" / "model.safetensors"))
+    assert all(torch.equal(ddp[k], plain[k]) for k in plain)
+    torch.manual_seed(0)  # the run's seed: the weights it started from (as the cuda test computes them)
+    init = MADP(madp_config("cpu")).state_dict()
+    moved = torch.cat([(plain[k] - init[k]).flatten() for k, _ in MADP(madp_config("cpu")).named_parameters()])
+    assert float(moved.norm()) > 1e-3
+
+
+def test_stop_after_minutes_checkpoints_and_logs_the_last_step(dataset, tmp_path):
+    cfg = resolve("madp", "cpu", data=str(dataset), out=str(tmp_path / "r"), epochs=1, batch_size=8, num_workers=0,
+                  val_samples=8, stop_after_minutes=1e-9)  # over at the first step
+    assert train(cfg, progress=False) == {"stopped": "stop_after_minutes", "step": 1}
+    lines = [json.loads(x) for x in (tmp_path / "r" / "metrics.jsonl").read_text().splitlines()]
+    assert [d["step"] for d in lines if "loss" in d] == [1]  # logged although log_every is 10
+    assert torch.load(tmp_path / "r" / "checkpoints" / "latest" / "state.pt", weights_only=True)["step"] == 1
+    code, err = cli("train", "--data", dataset, "--out", tmp_path / "bad", "--stop-after-minutes", "-1")
+    assert code == 2 and "--stop-after-minutes" in err
 
 
 def test_cosine_schedule_warms_up_then_decays_to_five_percent():
