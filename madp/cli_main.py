@@ -50,7 +50,7 @@ def user_message(app: typer.Typer, e: BaseException) -> str:
     return " ".join(msg.splitlines()[0].split())
 
 
-def _optional_ray_value(args: List[str]) -> List[str]:
+def optional_ray_value(args: List[str]) -> List[str]:
     """``--ray`` followed by nothing or by another option means ``--ray local`` (click has no options
     with an optional value)."""
     from madp.io.ray_backend import RAY_LOCAL
@@ -70,7 +70,7 @@ def run(app: typer.Typer, args: List[str]) -> None:
     cx = _click()
     debug = bool(os.environ.get("MADP_DEBUG"))
     try:
-        rv = app(args=_optional_ray_value(args), prog_name="madp", standalone_mode=False)
+        rv = app(args=optional_ray_value(args), prog_name="madp", standalone_mode=False)
     except getattr(cx.exceptions, "NoArgsIsHelpError", ()) as e:
         e.show()
         sys.exit(e.exit_code)
