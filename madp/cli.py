@@ -90,7 +90,7 @@ def datagen(
     num_features: int = typer.Option(32, min=1, help="F, Gaussian features per map."),
     sigma: Tuple[float, float] = typer.Option((40.0, 60.0), help="σ range of the features (m)."),
     peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range of the features."),
-    comm_radius: float = typer.Option(256.0, help="Communication radius r_c (m)."),
+    comm_radius_m: float = typer.Option(256.0, "--comm-radius", help="Communication radius r_c (m)."),
     world_size: int = typer.Option(1024, help="World side (m); 1 m cells."),
     samples_per_shard: int = typer.Option(512, min=1, help="Samples per shard (the last of a split holds the rest)."),
     shards: Optional[str] = typer.Option(None, help="Run only shard tasks I:J of the plan (merge parts later)."),
@@ -105,7 +105,7 @@ def datagen(
     from madp.sim import SimParams
 
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
-                       sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
+                       sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius_m)
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
                         policy=learner_settings(policy, beta), max_steps=max_steps or (600 if policy else 2100))
     run_datagen(cfg, out, workers=workers, shards=parse_shards(shards), overwrite=overwrite, ray=ray)
