@@ -18,7 +18,7 @@ from typing import List, Optional, Tuple
 
 import typer
 
-from madp.cli_main import _ray_option
+from madp.cli_main import ray_option
 from madp.controllers import DEFAULT, NAMES
 from madp.errors import SettingError
 from madp.io.atomic import write_json_atomic
@@ -75,7 +75,7 @@ def datagen(
     num_features: int = typer.Option(32, min=1, help="F, Gaussian features per map."),
     sigma: Tuple[float, float] = typer.Option((40.0, 60.0), help="σ range of the features (m)."),
     peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range of the features."),
-    comm_radius: float = typer.Option(256.0, help="Communication radius r_c (m)."),
+    comm_radius_m: float = typer.Option(256.0, "--comm-radius", help="Communication radius r_c (m)."),
     world_size: int = typer.Option(1024, help="World side (m); 1 m cells."),
     samples_per_shard: int = typer.Option(512, min=1, help="Samples per shard (the last of a split holds the rest)."),
     shards: Optional[str] = typer.Option(None, help="Run only shard tasks I:J of the plan (merge parts later)."),
@@ -84,14 +84,14 @@ def datagen(
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
     launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; README Datasets)."),
-    ray: Optional[str] = _ray_option(),
+    ray: Optional[str] = ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
     from madp.datagen import DatagenConfig, learner_settings, parse_shards, run_datagen
     from madp.sim import SimParams
 
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
-                       sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius)
+                       sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius_m)
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
                         policy=learner_settings(policy, beta), max_steps=max_steps or (600 if policy else 2100),
                         launch=launch)
@@ -210,7 +210,7 @@ def eval_cmd(
     cities: Optional[Path] = typer.Option(None, help="Directory of city files (default: the 40 cities shipped with madp)."),
     out: Path = typer.Option(Path("runs/eval"), help="Output root; results go to OUT/<suite>/."),
     overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
-    ray: Optional[str] = _ray_option(),
+    ray: Optional[str] = ray_option(),
     device: str = typer.Option("cpu", help="Where the learned controllers' models run: cpu | cuda | cuda:I | auto (cuda when there is one). Each worker holds its own copy."),
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos.

@@ -8,7 +8,7 @@ from typing import List, Optional
 
 import typer
 
-from madp.cli_main import _ray_option
+from madp.cli_main import ray_option
 from madp.errors import SettingError
 from madp.io.atomic import write_json_atomic
 
@@ -46,7 +46,7 @@ def bench_datagen_cmd(
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     format: str = typer.Option("mcap", "--format", help="mcap | parquet"),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
-    ray: Optional[str] = _ray_option("Measure the Ray backend's per-task overhead on this cluster ('auto', HOST:PORT) instead of a Ray started on this machine (measured whenever madp[ray] is installed)."),
+    ray: Optional[str] = ray_option("Measure the Ray backend's per-task overhead on this cluster ('auto', HOST:PORT) instead of a Ray started on this machine (measured whenever madp[ray] is installed)."),
 ) -> None:
     """End-to-end datagen rate at N = F = 32, the projected time for 100k samples, and the Ray backend's per-task overhead."""
     from madp.datagen.bench import bench_datagen_and_ray, format_table

@@ -56,11 +56,11 @@ RAY_HELP = ("Run the tasks on Ray: alone, a Ray started on this machine; 'auto':
             "filesystem every node sees. Never changes the results. Needs madp[ray].")
 
 
-def _ray_option(help: str = RAY_HELP):
+def ray_option(help: str = RAY_HELP):
     return typer.Option(None, "--ray", metavar="[ADDRESS]", help=help)
 
 
-def _optional_ray_value(args: List[str]) -> List[str]:
+def optional_ray_value(args: List[str]) -> List[str]:
     """``--ray`` followed by nothing or by another option means ``--ray local`` (click has no options
     with an optional value)."""
     from madp.io.ray_backend import RAY_LOCAL
@@ -80,7 +80,7 @@ def run(app: typer.Typer, args: List[str]) -> None:
     cx = _click()
     debug = bool(os.environ.get("MADP_DEBUG"))
     try:
-        rv = app(args=_optional_ray_value(args), prog_name="madp", standalone_mode=False)
+        rv = app(args=optional_ray_value(args), prog_name="madp", standalone_mode=False)
     except getattr(cx.exceptions, "NoArgsIsHelpError", ()) as e:
         e.show()
         sys.exit(e.exit_code)

@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from madp.cli import _optional_ray_value
+from madp.cli_main import optional_ray_value
 from madp.data_schema.dataset import verify_dataset
 from madp.datagen import DatagenConfig, run_datagen
 from madp.io.atomic import is_temp
@@ -118,10 +118,10 @@ def test_eval_on_ray_writes_the_local_tables(cluster, tmp_path, steps):
 
 
 def test_ray_without_an_address_means_a_local_ray():
-    assert _optional_ray_value(["datagen", "--ray"]) == ["datagen", "--ray", "local"]
-    assert _optional_ray_value(["datagen", "--ray", "--n", "5"]) == ["datagen", "--ray", "local", "--n", "5"]
-    assert _optional_ray_value(["eval", "--ray", "auto"]) == ["eval", "--ray", "auto"]
-    assert _optional_ray_value(["eval", "--ray=10.0.0.1:6379"]) == ["eval", "--ray=10.0.0.1:6379"]
+    assert optional_ray_value(["datagen", "--ray"]) == ["datagen", "--ray", "local"]
+    assert optional_ray_value(["datagen", "--ray", "--n", "5"]) == ["datagen", "--ray", "local", "--n", "5"]
+    assert optional_ray_value(["eval", "--ray", "auto"]) == ["eval", "--ray", "auto"]
+    assert optional_ray_value(["eval", "--ray=10.0.0.1:6379"]) == ["eval", "--ray=10.0.0.1:6379"]
 
 
 @pytest.mark.parametrize("command", [["datagen", "--n", "10"], ["eval", "--steps", "1"]])

@@ -39,6 +39,7 @@ import pyarrow.parquet as pq
 from .schema import (
     ACTIONS_DTYPE,
     INDEX_DTYPE,
+    OBS_CHANNELS,
     OBS_SHAPE,
     OBSERVATIONS_DTYPE,
     POSITIONS_DTYPE,
@@ -77,7 +78,7 @@ def arrow_schema(num_robots: int) -> pa.Schema:
                 "dtype": "float16",
                 "shape": list(shapes["observations"]),
                 "encoding": "little-endian C-order bytes",
-                "channels": ["local", "comm_x", "comm_y", "obstacle"],
+                "channels": list(OBS_CHANNELS),
             },
         },
     }

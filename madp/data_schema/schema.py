@@ -39,7 +39,9 @@ SCHEMA_VERSION = 1
 
 #: Default number of robots per sample (N).
 DEFAULT_NUM_ROBOTS = 32
-#: Observation channels per robot, in the library's order.
+#: Observation channels per robot, in the Coverage Control Library's order (local map, neighbours'
+#: x, neighbours' y, obstacle/boundary map): the one list of their names (:mod:`madp.sim.observations`
+#: makes them).
 OBS_CHANNELS = ("local", "comm_x", "comm_y", "obstacle")
 #: Observation image side in pixels.
 OBS_SIZE = 32

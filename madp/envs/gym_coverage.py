@@ -48,8 +48,10 @@ class CoverageGymEnv(CoverageWorld, gym.Env):
         reward = self._advance(np.asarray(action, dtype=np.float64).reshape(self.sim.num_robots, 2))
         return self._observation(), reward, False, self.truncated, self._info()
 
-    def action_from(self, controller) -> np.ndarray:
-        """The action [N, 2] of any madp controller (:mod:`madp.controllers`) in the current state."""
+    def actions_from(self, controller) -> np.ndarray:
+        """The actions [N, 2] of any madp controller (:mod:`madp.controllers`) in the current state, as this
+        env's action (the PettingZoo env's :meth:`~madp.envs.coverage_v0.CoverageParallelEnv.actions_from`
+        gives them as its action dict)."""
         return np.asarray(controller(self.sim), dtype=np.float64)  # float64: the simulator's precision
 
     def _observation(self) -> dict:

@@ -37,16 +37,16 @@ def pairwise_offsets(pos_m: Tensor) -> Tensor:
     return pos_m.unsqueeze(-3) - pos_m.unsqueeze(-2)
 
 
-def radius_adjacency(pos_m: Tensor, radius: float, valid: Tensor | None = None,
+def radius_adjacency(pos_m: Tensor, radius_m: float, valid: Tensor | None = None,
                      self_loops: bool = True) -> Tensor:
-    """Communication graph: ``adj [B, N, N]`` bool, True where ``||x_i - x_j|| < radius``.
+    """Communication graph: ``adj [B, N, N]`` bool, True where ``||x_i - x_j|| < radius_m``.
 
     Padding robots (``valid`` False) have no edges at all (not even a self loop); valid robots
     have a self loop iff ``self_loops``.
     """
     valid = _valid_or_default(pos_m, valid)
     d2 = pairwise_offsets(pos_m).square().sum(-1)
-    adj = d2 < radius * radius
+    adj = d2 < radius_m * radius_m
     adj = adj & valid.unsqueeze(-1) & valid.unsqueeze(-2)
     n = pos_m.shape[-2]
     eye = torch.eye(n, dtype=torch.bool, device=pos_m.device)
@@ -75,12 +75,12 @@ def connected_components_mask(adj: Tensor) -> Tensor:
     return r > 0
 
 
-def attention_mask(pos_m: Tensor, radius: float, valid: Tensor | None = None) -> Tensor:
+def attention_mask(pos_m: Tensor, radius_m: float, valid: Tensor | None = None) -> Tensor:
     """MADP attention mask ``M_att = M_W AND M_C`` (paper §III-B): ``mask [B, N, N]`` bool.
 
-    * ``M_W[i, j]``: ``||x_i - x_j|| < radius`` (includes i = j).
+    * ``M_W[i, j]``: ``||x_i - x_j|| < radius_m`` (includes i = j).
     * ``M_C[i, j]``: i and j lie in the same connected component of the communication graph
-      (edges at distance < radius). With edges defined by the same radius, M_W already implies
+      (edges at distance < radius_m). With edges defined by the same radius, M_W already implies
       M_C; the conjunction is kept as the paper defines it (and stays right if the two radii are
       ever made to differ).
     * Padding robots never attend and are never attended to. To keep the softmax finite their
@@ -88,7 +88,7 @@ def attention_mask(pos_m: Tensor, radius: float, valid: Tensor | None = None) ->
       meaningless and are masked out by the callers.
     """
     valid = _valid_or_default(pos_m, valid)
-    window = radius_adjacency(pos_m, radius, valid, self_loops=True)
+    window = radius_adjacency(pos_m, radius_m, valid, self_loops=True)
     comm = window  # the communication graph has the same radius as the attention window
     component = connected_components_mask(comm)
     mask = window & component
@@ -96,17 +96,17 @@ def attention_mask(pos_m: Tensor, radius: float, valid: Tensor | None = None) ->
     return mask | (eye & ~valid.unsqueeze(-1))
 
 
-def packed_neighbourhood_mask(pos_m: Tensor, radius: float, valid: Tensor, group: Tensor) -> Tensor:
+def packed_neighbourhood_mask(pos_m: Tensor, radius_m: float, valid: Tensor, group: Tensor) -> Tensor:
     """Attention mask of neighbourhoods packed side by side: ``[B, T, T]`` bool.
 
     ``pos_m [B, T, 2]`` the positions of the packed tokens, ``valid [B, T]``, ``group [B, T]`` long: the
     neighbourhood each token belongs to. Token a may attend to token c iff both are in the same
-    neighbourhood and ``||x_a - x_c|| < radius`` -- the :func:`attention_mask` of that neighbourhood
+    neighbourhood and ``||x_a - x_c|| < radius_m`` -- the :func:`attention_mask` of that neighbourhood
     alone, because a neighbourhood is one robot's attention row: every member lies within the
-    radius of that robot, so the neighbourhood is one connected component and the component term is
+    radius_m of that robot, so the neighbourhood is one connected component and the component term is
     all-true. Padding tokens attend only to themselves.
     """
     same = group.unsqueeze(-1) == group.unsqueeze(-2)
-    adj = radius_adjacency(pos_m, radius, valid, self_loops=True) & same
+    adj = radius_adjacency(pos_m, radius_m, valid, self_loops=True) & same
     eye = torch.eye(pos_m.shape[-2], dtype=torch.bool, device=pos_m.device)
     return adj | (eye & ~valid.unsqueeze(-1))

@@ -36,7 +36,12 @@ def _to_dict(cfg: Any) -> dict[str, Any]:
     return out
 
 
+#: Config keys of earlier checkpoints and their names now (checkpoints written before keep loading).
+RENAMED_KEYS = {"comm_radius": "comm_radius_m"}
+
+
 def _from_dict(cls: type, d: dict[str, Any]) -> Any:
+    d = {RENAMED_KEYS.get(k, k): v for k, v in d.items()}
     names = {f.name: f for f in dataclasses.fields(cls)}
     unknown = set(d) - set(names)
     if unknown:
@@ -61,7 +66,7 @@ class MADPConfig:
     # --- geometry -------------------------------------------------------------------------------
     world_size: float = 1024.0
     """World side length (m)."""
-    comm_radius: float = 256.0
+    comm_radius_m: float = 256.0
     """Attention radius r_att = communication radius r_c (m): robots attend to robots closer than this."""
 
     # --- perception: O_i [C, S, S] -> z_i [z_dim] -----------------------------------------------
@@ -141,7 +146,7 @@ class LPACConfig:
 
     preset: str = "paper"
     world_size: float = 1024.0
-    comm_radius: float = 256.0
+    comm_radius_m: float = 256.0
     obs_channels: int = 4
     obs_size: int = 32
     cnn_channels: tuple[int, ...] = (32, 32, 32)

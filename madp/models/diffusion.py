@@ -1,4 +1,4 @@
-"""DDPM noise schedule and DDIM sampler step (paper §II and Algorithm 1), diffusers-style.
+"""DDPM noise schedule and DDIM sampler step (paper §II and Algorithm 1).
 
 Indexing follows the paper: diffusion steps ``k = 1 .. K``, ``alpha_k = 1 - beta_k`` with ``beta``
 linear from ``beta_start`` to ``beta_end``, ``abar_k = prod_{j<=k} alpha_j`` and ``abar_0 = 1`` (clean
@@ -20,17 +20,8 @@ __all__ = ["DDPMSchedule"]
 
 
 class DDPMSchedule:
-    """Linear-beta DDPM schedule with DDIM stepping.
-
-    Typical use (as diffusers' ``DDIMScheduler``)::
-
-        sched = DDPMSchedule(1000)
-        sched.set_timesteps(50)
-        x = torch.randn(...)
-        for k in sched.timesteps:            # k_S, ..., k_1
-            eps = model(x, k)
-            x = sched.step(eps, k, x, eta=0.0)   # -> x at the next lower k (finally k_0 = 0)
-    """
+    """Linear-beta DDPM schedule with DDIM stepping: :meth:`ddim_timesteps` is the subsequence a sampler
+    walks, :meth:`ddim_step` one step of it. The samplers (:mod:`.samplers`) drive both."""
 
     def __init__(self, num_train_steps: int = 1000, beta_start: float = 1e-4, beta_end: float = 0.02):
         if num_train_steps < 1:
@@ -46,8 +37,6 @@ class DDPMSchedule:
         self.alphas = 1.0 - self.betas
         #: ``alphas_cumprod[k] = abar_k`` for k = 0..K, ``abar_0 = 1``.
         self.alphas_cumprod = torch.cat([one, torch.cumprod(1.0 - betas, 0)])
-        self.timesteps: Tensor | None = None
-        self._prev_table: Tensor | None = None
         self._cache: dict[tuple[str, str], Tensor] = {}
 
     # ----------------------------------------------------------------------------------- helpers
@@ -102,39 +91,9 @@ class DDPMSchedule:
         i = torch.arange(s, -1, -1, dtype=torch.float64)
         return (i * self.num_train_steps / s).round().long()
 
-    def set_timesteps(self, num_steps: int) -> Tensor:
-        """Prepare S DDIM steps; sets and returns ``self.timesteps = [k_S, ..., k_1]`` (the k at which
-        the model is evaluated) and remembers each one's successor for :meth:`step`."""
-        seq = self.ddim_timesteps(num_steps)
-        prev = torch.full((self.num_train_steps + 1,), -1, dtype=torch.long)
-        prev[seq[:-1]] = seq[1:]
-        self.timesteps = seq[:-1]
-        self._prev_table = prev
-        self._cache = {key: v for key, v in self._cache.items() if key[0] != "_prev_table"}
-        return self.timesteps
-
-    def previous_timestep(self, k: int | Tensor) -> int | Tensor:
-        """The successor of k in the subsequence set by :meth:`set_timesteps`."""
-        if self._prev_table is None:
-            raise RuntimeError("call set_timesteps(num_steps) first, or pass prev_k")
-        if isinstance(k, Tensor):
-            out = self._on("_prev_table", k.device)[k.long()]
-            if bool((out < 0).any()):
-                raise ValueError("timestep not in the DDIM subsequence")
-            return out
-        out = int(self._prev_table[int(k)])
-        if out < 0:
-            raise ValueError(f"timestep {k} not in the DDIM subsequence")
-        return out
-
-    def ddim_sigma(self, k: int | Tensor, prev_k: int | Tensor, eta: float, like: Tensor) -> Tensor:
-        """``sigma = eta sqrt((1 - abar_prev)/(1 - abar_k)) sqrt(1 - abar_k/abar_prev)`` (Algorithm 1)."""
-        ab, ab_prev = self._at(k, like), self._at(prev_k, like)
-        return eta * ((1 - ab_prev) / (1 - ab)).sqrt() * (1 - ab / ab_prev).clamp_min(0).sqrt()
-
-    def step(self, eps_hat: Tensor, k: int | Tensor, x_k: Tensor, eta: float = 0.0,
-             prev_k: int | Tensor | None = None, generator: torch.Generator | None = None,
-             noise: Tensor | None = None, clip_x0: float | None = None) -> Tensor:
+    def ddim_step(self, eps_hat: Tensor, k: int | Tensor, prev_k: int | Tensor, x_k: Tensor, eta: float = 0.0,
+                  generator: torch.Generator | None = None, noise: Tensor | None = None,
+                  clip_x0: float | None = None) -> Tensor:
         """One DDIM step ``x_{k} -> x_{prev_k}`` (Algorithm 1 of the paper)::
 
             sigma = eta sqrt((1 - abar_prev)/(1 - abar_k)) sqrt(1 - abar_k / abar_prev)
@@ -146,16 +105,14 @@ class DDPMSchedule:
         Args:
             eps_hat: predicted noise, same shape as ``x_k``.
             k: current step (int, or ``[B]`` long tensor).
+            prev_k: target step (the next of :meth:`ddim_timesteps`).
             x_k: current sample ``[B, ...]``.
             eta: noise scale in [0, 1].
-            prev_k: target step; default: successor of k in :meth:`set_timesteps`.
             generator / noise: source of the fresh noise when ``eta > 0`` (``noise`` wins; it must
                 have the shape of ``x_k``).
             clip_x0: if set, clamp the implied ``x0_hat`` to ``[-clip_x0, clip_x0]`` and re-derive
                 eps from it (diffusers' ``clip_sample``). Off by default, as in the paper.
         """
-        if prev_k is None:
-            prev_k = self.previous_timestep(k)
         ab, ab_prev = self._at(k, x_k), self._at(prev_k, x_k)
         if clip_x0 is not None:
             x0 = self.predict_x0(x_k, eps_hat, k).clamp(-clip_x0, clip_x0)

@@ -28,7 +28,7 @@ from .perception import PerceptionCNN
 __all__ = ["LPAC", "batch_graph", "sparse_adjacency"]
 
 
-def batch_graph(pos_m: Tensor, radius: float, valid: Tensor | None = None,
+def batch_graph(pos_m: Tensor, radius_m: float, valid: Tensor | None = None,
                 edge_weight: str = "gaussian") -> tuple[Tensor, Tensor, Tensor]:
     """Communication graphs of a batch of swarms as one disjoint ``torch_geometric`` graph.
 
@@ -45,7 +45,7 @@ def batch_graph(pos_m: Tensor, radius: float, valid: Tensor | None = None,
     if valid is None:
         valid = torch.ones(b, n, dtype=torch.bool, device=pos_m.device)
     valid = valid.to(torch.bool)
-    adj = radius_adjacency(pos_m, radius, valid, self_loops=False)  # [B, N, N]
+    adj = radius_adjacency(pos_m, radius_m, valid, self_loops=False)  # [B, N, N]
     flat_valid = valid.reshape(-1)
     node = torch.cumsum(flat_valid.long(), 0) - 1
     node = torch.where(flat_valid, node, torch.full_like(node, -1)).view(b, n)
@@ -54,7 +54,7 @@ def batch_graph(pos_m: Tensor, radius: float, valid: Tensor | None = None,
     edge_index = torch.stack([node[bb, jj], node[bb, ii]])
     if edge_weight == "gaussian":
         d2 = (pos_m[bb, ii] - pos_m[bb, jj]).square().sum(-1)
-        weight = torch.exp(-d2 / (radius * radius))
+        weight = torch.exp(-d2 / (radius_m * radius_m))
     elif edge_weight == "binary":
         weight = torch.ones(bb.shape[0], device=pos_m.device, dtype=pos_m.dtype)
     else:
@@ -110,7 +110,7 @@ class LPAC(ActionStatsMixin):
         if valid is None:
             valid = torch.ones(b, n, dtype=torch.bool, device=pos_m.device)
         valid = valid.to(torch.bool)
-        node, edge_index, weight = batch_graph(pos_m, cfg.comm_radius, valid, cfg.edge_weight)
+        node, edge_index, weight = batch_graph(pos_m, cfg.comm_radius_m, valid, cfg.edge_weight)
         x_img = obs[valid].to(self.dtype)  # [R, C, S, S], R valid robots in node-id order
         z = self.cnn(x_img)
         h = torch.cat([z, self.normalize_positions(pos_m[valid]).to(z.dtype)], dim=-1)

@@ -120,7 +120,7 @@ class MADP(ActionStatsMixin):
     def attention_mask(self, pos_m: Tensor, valid: Tensor | None = None) -> Tensor:
         """``[B, N, N]`` bool: distance < r_c AND same communication component; see
         :func:`madp.models.attention_mask.attention_mask`."""
-        return attention_mask(pos_m, self.config.comm_radius, valid)
+        return attention_mask(pos_m, self.config.comm_radius_m, valid)
 
     def embed_tokens(self, obs: Tensor, pos_m: Tensor, mask: Tensor, valid: Tensor | None = None) -> Tensor:
         """What each robot computes for itself and shares: ``tokens [B, N, 34] = [z_i, p_i]``.
@@ -133,7 +133,7 @@ class MADP(ActionStatsMixin):
             w = mask.to(pos_m.dtype)  # padding columns are already False (except a padding row's diagonal)
             off = pairwise_offsets(pos_m)  # [B, N, N, 2], x_j - x_i
             p = -(w.unsqueeze(-1) * off).sum(-2) / w.sum(-1, keepdim=True).clamp_min(1)
-            p = (p / cfg.comm_radius).to(z.dtype)
+            p = (p / cfg.comm_radius_m).to(z.dtype)
         else:
             p = z.new_zeros(*z.shape[:-1], 2)
         tokens = torch.cat([z, p], dim=-1)
@@ -311,7 +311,7 @@ class MADP(ActionStatsMixin):
 
         packed = pack_neighbourhoods(mask, valid, self.decentralized_row_tokens, dedupe and not independent_noise)
         pack, pos_p = packed.pack, packed.pack(pos_m)
-        mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius, packed.valid, packed.group)
+        mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius_m, packed.valid, packed.group)
         memory = self.encode_tokens(pack(tokens), pos_p, mask_p)
 
         dt = memory.dtype

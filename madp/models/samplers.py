@@ -14,7 +14,7 @@ A sampler is a small stateful object (DPM-Solver++ keeps the previous data predi
 new one per sampling call. Every coefficient is a python float computed in float64 once, so a step
 is a handful of tensor ops whatever the dtype of ``x``.
 
-* **DDIM** (``eta`` in [0, 1]): :meth:`DDPMSchedule.step`; ``eta = 0`` is the deterministic ODE
+* **DDIM** (``eta`` in [0, 1]): :meth:`DDPMSchedule.ddim_step`; ``eta = 0`` is the deterministic ODE
   solver of first order.
 * **DPM-Solver++(2M)** (Lu et al. 2022, arXiv:2211.01095; ``eta`` must be 0): multistep
   second-order solver of the same ODE in data prediction, with half-log-SNR
@@ -78,8 +78,8 @@ class DDIMSampler:
 
     def step(self, eps_hat: Tensor, i: int, x: Tensor, noise: Tensor | None = None) -> Tensor:
         """``x`` at ``timesteps[i]`` -> ``x`` at the next lower step; ``noise`` is the fresh draw when η > 0."""
-        return self.schedule.step(eps_hat, self._seq[i], x, eta=self.eta, prev_k=self._seq[i + 1], noise=noise,
-                                  clip_x0=self.clip_x0)
+        return self.schedule.ddim_step(eps_hat, self._seq[i], self._seq[i + 1], x, eta=self.eta, noise=noise,
+                                       clip_x0=self.clip_x0)
 
 
 class DPMSolverMultistepSampler:

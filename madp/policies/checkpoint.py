@@ -75,7 +75,7 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
     except (ValueError, TypeError, KeyError, AttributeError) as e:
         raise InputError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
     load_weights(model, state, path, f"the {kind} config it carries")
-    meta["kind"], meta["config"] = kind, config
+    meta["kind"], meta["config"] = kind, model.config.to_dict()  # today's names, whatever the file's age
     return model.to(device).eval(), meta
 
 

@@ -5,14 +5,14 @@ imports fast and runs anywhere."""
 from .controllers import ClairvoyantCVT, Controller, DecentralizedCVT, lloyd_velocity
 from .env import CoverageEnv
 from .idf import importance_map, random_features
-from .observations import CHANNELS, observation_tensor, resize_matrix
+from .observations import observation_tensor, resize_matrix
 from .params import SimParams
 from .rollout import Rollout, rollout
 from .scenario import Scenario, ScenarioError
 from .voronoi import CellSums, ColumnPrefix, coverage_cost, voronoi_sums
 
 __all__ = [
-    "CHANNELS", "CellSums", "ClairvoyantCVT", "ColumnPrefix", "Controller", "CoverageEnv",
+    "CellSums", "ClairvoyantCVT", "ColumnPrefix", "Controller", "CoverageEnv",
     "DecentralizedCVT", "Rollout", "Scenario", "ScenarioError", "SimParams", "coverage_cost",
     "importance_map", "lloyd_velocity", "observation_tensor", "random_features",
     "resize_matrix", "rollout", "voronoi_sums",

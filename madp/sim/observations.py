@@ -1,7 +1,7 @@
 """Per-robot observation tensors O [N, 4, 32, 32]: local map, neighbours' x, neighbours' y, boundary.
 
-Channel order is the Coverage Control Library's (``local_map, comm_x, comm_y, obstacle_map``), the
-order of the reference vectors; ``CHANNELS`` names it. Local and boundary maps are 256 × 256 crops
+Channel order is the Coverage Control Library's (local map, comm x, comm y, obstacle map), the order
+of the reference vectors; the sample schema names the channels (``madp.data_schema.OBS_CHANNELS``). Local and boundary maps are 256 × 256 crops
 resized to 32 × 32 by antialiased bilinear interpolation. That resize is linear and separable: one
 fixed [32, 256] matrix R gives R · M · Rᵀ, equal to torch's ``F.interpolate(mode='bilinear',
 antialias=True)`` (tested), without importing torch here. R is banded (16 taps a row), so the
@@ -16,8 +16,6 @@ from functools import lru_cache
 import numpy as np
 
 from . import kernels
-
-CHANNELS = ("local_map", "comm_x", "comm_y", "obstacle_map")
 
 
 @lru_cache(maxsize=8)

@@ -85,7 +85,7 @@ def test_render_is_the_video_frame():
     frames, positions, costs = [pz.render()], [pz.state()], [1.0]
     while pz.agents:
         _, _, _, _, infos = pz.step(pz.actions_from(dcvt))
-        gym.step(gym.unwrapped.action_from(dcvt))
+        gym.step(gym.unwrapped.actions_from(dcvt))
         frames.append(pz.render())
         positions.append(pz.state())
         costs.append(infos["robot_0"]["normalized_cost"])

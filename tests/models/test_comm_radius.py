@@ -47,14 +47,14 @@ def test_robots_exactly_r_c_apart_are_not_neighbours_anywhere(radius, positions,
     assert np.array_equal(attention_mask(pos[None], radius)[0].numpy(), adj | eye)
     assert np.array_equal(radius_adjacency(pos[None], radius, self_loops=False)[0].numpy(), adj)
     # MADP's own mask (radius from its config) and the mask of a packed neighbourhood
-    madp = MADP(tiny_madp_config(comm_radius=radius))
+    madp = MADP(tiny_madp_config(comm_radius_m=radius))
     assert np.array_equal(madp.attention_mask(pos[None])[0].numpy(), adj | eye)
     group = torch.zeros(1, n, dtype=torch.long)
     packed = packed_neighbourhood_mask(pos[None], radius, torch.ones(1, n, dtype=torch.bool), group)
     assert np.array_equal(packed[0].numpy(), adj | eye)
     # LPAC-K3's graph (both edge directions, no self loops)
-    lpac = LPAC(lpac_config("cpu", gnn_hidden=8, comm_radius=radius))
-    _, edge_index, _ = batch_graph(pos[None], lpac.config.comm_radius)
+    lpac = LPAC(lpac_config("cpu", gnn_hidden=8, comm_radius_m=radius))
+    _, edge_index, _ = batch_graph(pos[None], lpac.config.comm_radius_m)
     lpac_adj = np.zeros((n, n), dtype=bool)
     lpac_adj[edge_index[1].numpy(), edge_index[0].numpy()] = True
     assert np.array_equal(lpac_adj, adj)

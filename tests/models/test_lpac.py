@@ -77,7 +77,7 @@ def test_sparse_graph_path_equals_tagconv_on_edge_index_and_the_dense_formula(ge
     valid[1, -2:] = False
     with torch.no_grad():
         got = model(obs, pos, valid)
-        node, edge_index, weight = batch_graph(pos, model.config.comm_radius, valid, edge_weight)
+        node, edge_index, weight = batch_graph(pos, model.config.comm_radius_m, valid, edge_weight)
         assert edge_index.shape[1] > 10  # a real graph
         h0 = torch.cat([model.cnn(obs[valid]), model.normalize_positions(pos[valid])], dim=-1)
         # (1) torch_geometric's own edge_index path

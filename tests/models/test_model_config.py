@@ -11,7 +11,7 @@ def test_paper_preset_matches_spec():
     assert (c.n_enc_layers, c.n_dec_layers) == (8, 8)
     assert c.z_dim == 32 and c.token_dim == 34
     assert len(c.cnn_channels) == 3
-    assert (c.comm_radius, c.world_size, c.rope_tau, c.rope_layers) == (256.0, 1024.0, 1024.0, 1)
+    assert (c.comm_radius_m, c.world_size, c.rope_tau, c.rope_layers) == (256.0, 1024.0, 1024.0, 1)
     assert (c.num_train_steps, c.beta_start, c.beta_end) == (1000, 1e-4, 0.02)
     lp = lpac_config("paper")
     assert (lp.cnn_channels, lp.cnn_stride, lp.cnn_padding) == ((32, 32, 32), 1, 0)
@@ -41,3 +41,11 @@ def test_overrides_and_validation():
         MADPConfig(d_model=40, n_heads=4)  # head dim 10 not divisible by 4
     with pytest.raises(ValueError):
         MADPConfig.from_dict({"nope": 1})
+
+
+@pytest.mark.parametrize("cls", [MADPConfig, LPACConfig])
+def test_configs_of_earlier_checkpoints_still_load(cls):
+    """Checkpoints written before the radius carried its unit in its name (``comm_radius``, as the
+    shipped ones) load with the value in ``comm_radius_m``."""
+    assert cls.from_dict({"comm_radius": 128.0}) == cls(comm_radius_m=128.0)
+    assert "comm_radius" not in cls().to_dict()

@@ -101,7 +101,7 @@ def test_sampler_settings_are_checked():
     assert e.value.setting == "sampler"
     with pytest.raises(SettingError, match="^sampling_steps: expected >= 1, got 0"):
         check_sampler("ddim", 0, 0.0)
-    with pytest.raises(SettingError, match="^eta 0.5: DPM-Solver.. is deterministic"):
+    with pytest.raises(SettingError, match=r"^eta 0.5: DPM-Solver\+\+\(2M\) is deterministic"):
         check_sampler("dpm++", 10, 0.5)
     with pytest.raises(SettingError, match="^eta: expected a value in"):
         check_sampler("ddim", 10, 1.5)
