@@ -51,10 +51,11 @@ def rollout(
     learned = controller_info(controller).learned  # an unknown name is refused before anything is read
     if checkpoint is not None and not learned:
         raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
-    frames = [Frames(check_video_path(video), steps)] if video is not None else []  # checked before the rollout
+    device = resolve_device(device)  # checked, like the video path, before anything is read or run
+    frames = [Frames(check_video_path(video), steps)] if video is not None else []
     sc = Scenario.load(scenario)
     ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0,
-                           device=resolve_device(device))
+                           device=device)
     result = run(CoverageEnv(sc), ctrl, steps, frames)
     write_json_atomic(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"

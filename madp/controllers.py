@@ -84,6 +84,10 @@ CLASSICAL: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if not c.le
 LEARNED: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.learned)
 #: What ``madp eval`` runs without ``--controllers`` (those of them that have a checkpoint).
 DEFAULT: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.default)
+#: The controllers MADP is compared with in the paper (SPEC §5: the ``scale`` suite's improvement matrices).
+BASELINES: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.paper and not c.samples)
+#: The controllers that sample (MADP, decentralized and centralized-masked).
+SAMPLING: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.samples)
 #: The checkpoint kinds, in registry order.
 CHECKPOINT_KINDS: tuple[str, ...] = tuple(dict.fromkeys(CONTROLLERS[n].kind for n in LEARNED))
 

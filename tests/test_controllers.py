@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from madp.controllers import CLASSICAL, CONTROLLERS, DEFAULT, LEARNED, NAMES, checkpoint_kind, make_controller
+from madp.controllers import (BASELINES, CLASSICAL, CONTROLLERS, DEFAULT, LEARNED, NAMES, SAMPLING, checkpoint_kind,
+                              make_controller)
 from madp.errors import SettingError
 from madp.sim import ClairvoyantCVT, DecentralizedCVT
 
@@ -20,6 +21,7 @@ def test_the_registry_is_the_one_list_of_names():
     assert EvalConfig(suite="uniform").controllers == NAMES
     assert order_controllers(["zeta", *reversed(NAMES)]) == [*NAMES, "zeta"]
     assert PAPER_CONTROLLERS == ("dcvt", "lpac", "madp")
+    assert BASELINES == ("dcvt", "lpac") and SAMPLING == ("madp", "madp_central")
     assert [checkpoint_kind(n) for n in NAMES] == [None, None, "lpac", "madp", "madp"]
     assert len({c.color for c in CONTROLLERS.values()}) == len(NAMES)  # a plot tells them apart
 

@@ -2,18 +2,12 @@
 
 - :mod:`madp.envs.coverage_v0`: PettingZoo (``parallel_env()``, ``env()``), one agent per robot.
 - ``gymnasium.make("madp/Coverage-v0")``: a centralized single-agent view
-  (:class:`madp.envs.gym_coverage.CoverageGymEnv`), registered on import of this package.
+  (:class:`madp.envs.gym_coverage.CoverageGymEnv`), registered on import of this package (:mod:`.registration`).
 """
-
-import gymnasium
 
 from madp.controllers import make_controller
 
 from . import coverage_v0
-
-GYM_ID = "madp/Coverage-v0"
-
-if GYM_ID not in gymnasium.registry:
-    gymnasium.register(id=GYM_ID, entry_point="madp.envs.gym_coverage:CoverageGymEnv")
+from .registration import GYM_ID
 
 __all__ = ["GYM_ID", "coverage_v0", "make_controller"]

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from madp.controllers import SAMPLING
 from madp.errors import SettingError
 from madp.models.bench import bench_infer
 
@@ -88,7 +89,7 @@ def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[in
     settings = [BASELINE] + [(s, k) for s, ks in grid.items() for k in ks if (s, k) != BASELINE]
     costs, step_ms = {}, {}
     for sampler, s in settings:
-        controllers = ("madp", "madp_central") if (sampler, s) == BASELINE else ("madp",)
+        controllers = SAMPLING if (sampler, s) == BASELINE else ("madp",)  # DDIM-50: the centralized pass too
         cfg = EvalConfig(suite="uniform", out=str(sweep_out / f"{sampler}-{s}"), num_envs=envs, steps=steps,
                          controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers,
                          device=device)

@@ -25,7 +25,7 @@ import numpy as np
 import pyarrow as pa
 from scipy import stats
 
-from madp.controllers import CONTROLLERS, NAMES
+from madp.controllers import BASELINES, NAMES, SAMPLING
 
 __all__ = ["CONFIDENCE", "column", "cost_curve_bands", "grouped_stats", "has_column", "n_range", "natural_key", "order_controllers",
            "order_groups", "sampling_used", "scale_improvement_matrix", "select_suite", "summarize"]
@@ -226,11 +226,11 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
         "overall": overall,
     }
     # MADP in the scale matrices: the decentralized policy when it ran, else the centralized-masked one.
-    method = next((c for c in controllers if c in CONTROLLERS and CONTROLLERS[c].kind == "madp"), None)
+    method = next((c for c in controllers if c in SAMPLING), None)
     if suite == "scale" and method is not None and \
             has_column(table, "num_robots") and has_column(table, "num_features"):
         imp = {}
-        for baseline in ("dcvt", "lpac"):
+        for baseline in BASELINES:
             if baseline in controllers:
                 m = scale_improvement_matrix(table, baseline, method)
                 if np.isfinite(m["improvement"]).any():

@@ -1,6 +1,9 @@
 """Torch modules of madp: perception CNN, spatial transformer (2-D RoPE, masks), DDPM/DDIM
 schedule with DDIM and DPM-Solver++ samplers, MADP, LPAC-K3, EMA. Knows nothing of files or the simulator.
 
+LPAC-K3 (:mod:`madp.models.lpac`: ``LPAC``, ``batch_graph``, ``sparse_adjacency``) imports
+torch_geometric, several seconds, so it is imported from its module, not re-exported here.
+
 Shapes used throughout: ``obs [B, N, 4, 32, 32]``, ``pos_m [B, N, 2]`` (metres),
 ``valid [B, N]`` bool (False = padding robot), ``actions_norm [B, N, 2]`` (normalised actions).
 """
@@ -35,33 +38,17 @@ from .transformer import (
     apply_rope,
 )
 
-_LAZY = {"LPAC", "batch_graph", "sparse_adjacency"}
-
-
-def __getattr__(name: str):
-    """LPAC-K3 lives in :mod:`madp.models.lpac` and imports torch_geometric (several seconds);
-    it is loaded on first use so that MADP users do not pay for it."""
-    if name in _LAZY:
-        from . import lpac
-
-        return getattr(lpac, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 __all__ = [
     "MADP",
     "MADPConfig",
     "madp_config",
-    "LPAC",
     "LPACConfig",
     "lpac_config",
     "PRESETS",
     "DDPMSchedule",
     "EMA",
     "PerceptionCNN",
-    "sparse_adjacency",
     "apply_per_robot",
-    "batch_graph",
     "attention_mask",
     "connected_components_mask",
     "radius_adjacency",

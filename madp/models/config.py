@@ -142,7 +142,7 @@ class MADPConfig:
 
 @dataclass
 class LPACConfig:
-    """Hyper-parameters of :class:`madp.models.LPAC` (LPAC-K3 of the Coverage Control Library)."""
+    """Hyper-parameters of :class:`madp.models.lpac.LPAC` (LPAC-K3 of the Coverage Control Library)."""
 
     preset: str = "paper"
     world_size: float = 1024.0

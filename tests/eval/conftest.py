@@ -1,7 +1,8 @@
 import pytest
 import torch
 
-from madp.models import LPAC, MADP, lpac_config, madp_config
+from madp.models import MADP, lpac_config, madp_config
+from madp.models.lpac import LPAC
 from madp.training.checkpoint import save_policy
 
 META = {"action_stats": {"count": 1, "mean": [0.0, 0.0], "std": [2.0, 2.0]}}

@@ -10,7 +10,8 @@ import torch
 from madp.datagen.plan import DATASET_SEED_BITS
 from madp.eval.runner import EvalConfig, available_controllers, plan_jobs, run_batch, run_job, run_suite
 from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
-from madp.models import LPAC, MADP, lpac_config, madp_config
+from madp.models import MADP, lpac_config, madp_config
+from madp.models.lpac import LPAC
 from madp.training.checkpoint import save_policy
 from tests.eval.conftest import META
 from tests.test_reliability_errors import assert_one_line, cli

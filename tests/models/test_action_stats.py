@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from madp.models import LPAC, MADP, lpac_config
+from madp.models import MADP, lpac_config
+from madp.models.lpac import LPAC
 from madp.policies import LPACPolicy
 from madp.sim import CoverageEnv, Scenario, SimParams
 from .models_testutils import tiny_madp_config

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from madp.models import (LPAC, MADP, attention_mask, batch_graph, lpac_config, packed_neighbourhood_mask,
-                         radius_adjacency)
+from madp.models import MADP, attention_mask, lpac_config, packed_neighbourhood_mask, radius_adjacency
+from madp.models.lpac import LPAC, batch_graph
 from madp.sim import CoverageEnv, Scenario, SimParams
 from .models_testutils import tiny_madp_config
 

@@ -1,7 +1,8 @@
 import pytest
 import torch
 
-from madp.models import LPAC, batch_graph, lpac_config
+from madp.models import lpac_config
+from madp.models.lpac import LPAC, batch_graph
 from .models_testutils import grid_positions, random_obs
 
 

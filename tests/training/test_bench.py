@@ -37,7 +37,7 @@ def test_report_is_consistent_and_flops_scale_with_the_batch(dataset):
         assert r["achieved_flops_per_s"] == pytest.approx(r["flops_per_step"] / r["step_s"])
     assert r4["flops_per_step"] == 2 * r2["flops_per_step"] > 0
     assert rl["flops_per_step"] > 0 and rl["optimizer_impl"] == "fused"
-    table = format_train_bench([r2, rl])
+    table = "\n".join(format_train_bench([r2, rl]))
     assert "madp" in table and "lpac" in table and "fused" in table
 
 

@@ -1,16 +1,18 @@
-"""SimParams' contract: which values are refused, with which one-line message, and the memory
-estimate ``check_fits`` compares with the machine's memory.
+"""SimParams' contract: which values are refused, with which one-line message (unknown parameters
+included), and the memory estimate ``check_fits`` compares with the machine's memory.
 
-Written against the second batch of mutants mutmut left alive in ``madp/sim/params.py``; each test
-names the mutants it kills (``__post_init__`` mutants are written ``_N``). The messages are what a
-user sees when a flag or a JSON file holds a bad value, so they are pinned whole.
-"""
+Written against the mutants mutmut left alive in ``madp/sim/params.py``; each test names the mutants
+it kills (``__post_init__`` mutants are written ``_N``). The messages are what a user sees when a flag
+or a JSON file holds a bad value, so they are pinned whole."""
+
+from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from madp.sim import Scenario, ScenarioError, SimParams
 from madp.sim import params as params_mod
-from madp.sim.params import SimParams, physical_memory_bytes
+from madp.sim.params import physical_memory_bytes
 
 
 def _refusal(**kw) -> str:
@@ -144,3 +146,21 @@ def test_check_fits_boundary_and_message(monkeypatch):
         p.check_fits("--num-robots")
     assert str(e.value) == ("--num-robots: N = 1000 robots and F = 32 features on a 1024 m world need at least "
                             "6.2 GiB for one environment, more than this machine's 3.0 GiB")
+
+
+KNOWN = ("['check_oscillations', 'comm_radius_m', 'dt_s', 'history_size', 'local_map_size', 'max_speed_mps', "
+         "'num_features', 'num_robots', 'obs_size', 'peak_range', 'sensor_size', 'sigma_range_m', "
+         "'truncation_sigmas', 'world_size']")
+
+
+def test_unknown_parameter_message():
+    """The exact message, also as a scenario file shows it. Guards SimParams.from_dict__mutmut_3
+    (no check: a TypeError from the constructor), _7 (message None) and _8 (the known names
+    replaced by ``sorted(None)``)."""
+    with pytest.raises(ValueError) as e:
+        SimParams.from_dict({"comm_radius_mm": 3, "world_size": 256})
+    assert str(e.value) == f"unknown parameter(s) ['comm_radius_mm']; expected some of {KNOWN}"
+    with pytest.raises(ScenarioError) as e:
+        Scenario.from_dict({"features": [{"mean": [1, 2], "sigma": 40, "peak": 1}], "robots": [[1, 2]],
+                            "params": {"comm_radius_mm": 3}}, "s.json")
+    assert str(e.value) == f"s.json: field 'params': unknown parameter(s) ['comm_radius_mm']; expected some of {KNOWN}"

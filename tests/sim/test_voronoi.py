@@ -1,14 +1,19 @@
-"""ColumnPrefix reads its map as float64, whatever the map's array type.
+"""Voronoi sums: ColumnPrefix reads its map as float64, whatever the map's array type; and the
+brute-force oracle they are checked against is silent on an empty cell.
 
-Written against the campaign on the numba simulator (2026-12-02): the mutants mutmut left alive in
-``madp/sim/voronoi.py``; each test names the mutants it kills.
-"""
+Written against the mutants mutmut left alive in ``madp/sim/voronoi.py`` and
+``madp/sim/bruteforce.py``; each test names the mutants it kills."""
+
+from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pytest
 
 from madp.sim.bruteforce import brute_force_sums
 from madp.sim.voronoi import ColumnPrefix, cell_sums, coverage_cost, voronoi_sums, world_competitors
+
 from tests.sim import numpy_oracle
 
 
@@ -76,3 +81,18 @@ def test_cell_sums_leaves_the_cost_out_unless_asked_and_wants_exactly_one_map():
     for kw in ({}, {"prefix": prefix, "block_sums": (np.zeros((1, 1)), np.zeros((1, 1)))}):
         with pytest.raises(ValueError, match="^give exactly one of prefix and block_sums$"):
             cell_sums(sites, points, idx, valid, boxes, **kw)
+
+
+def test_brute_force_oracle_is_silent_on_an_empty_cell():
+    """A robot whose cell holds no importance gets mass 0, cost 0 and a NaN centroid, without a
+    numpy warning (callers run with warnings as errors). Guards brute_force_sums__mutmut_109/_111
+    (0/0 no longer ignored: RuntimeWarning "invalid value")."""
+    phi = np.zeros((32, 32))
+    phi[20:24, 20:24] = 1.0
+    sites = np.array([[2.0, 2.0], [22.0, 22.0]])  # robot 0's cell (x + y < 24) holds nothing
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mass, centroid, cost = brute_force_sums(phi, sites)
+    np.testing.assert_array_equal(mass, [0.0, 16.0])
+    assert np.isnan(centroid[0]).all() and np.allclose(centroid[1], [22.0, 22.0])
+    assert cost[0] == 0.0 and cost[1] == pytest.approx(4 * 4 * 2 * ((0.25 + 2.25) / 2))

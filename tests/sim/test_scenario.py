@@ -1,10 +1,11 @@
 """The scenario type's contract: what ``Scenario.random`` draws, the exact JSON ``to_dict``/``save``
-write, and the exact one-line errors of ``load`` and ``check_coverable`` (the CLI prints them as
-they are, so the whole message is pinned).
+write, the exact one-line errors of ``load``, ``from_dict`` and ``check_coverable`` (the CLI prints them
+as they are, so the whole message is pinned), the world's closed bounds for robots, the memory refusal,
+the optional fields kept, and the features' limits (σ and peak > 0, the mass 2πσ²·peak finite).
 
-Written against the mutants mutmut left alive in ``madp/sim/scenario.py`` (issue 17); each test
-names the mutants it kills. Tiny worlds (256 m) keep every test cheap.
-"""
+Written against the mutants mutmut left alive in ``madp/sim/scenario.py`` (issue 17); each test names
+the mutants it kills (``from_dict`` mutants are written ``from_dict_N``). Tiny worlds (256 m) keep
+every test cheap."""
 
 from __future__ import annotations
 
@@ -16,10 +17,14 @@ import numpy as np
 import pytest
 
 from madp.sim import Scenario, ScenarioError, SimParams
+from madp.sim import params as params_mod
 from madp.sim.idf import random_features
-from madp.sim.scenario import check_coverable
+from madp.sim.scenario import check_coverable, _features
+
 
 W = 256
+
+
 #: One valid feature on the 256 m world, for documents whose features are not the point.
 FEATURE = {"mean": [100.0, 120.0], "sigma": 40.0, "peak": 0.8}
 
@@ -27,8 +32,6 @@ FEATURE = {"mean": [100.0, 120.0], "sigma": 40.0, "peak": 0.8}
 def small(**kw) -> SimParams:
     return SimParams(**{"world_size": W, "num_robots": 1, "num_features": 1, **kw})
 
-
-# --- Scenario.random -----------------------------------------------------------------------------
 
 def test_random_draws_features_then_robots_from_the_seed():
     """The documented recipe, which makes every dataset reproducible from its seeds: one
@@ -62,8 +65,6 @@ def test_random_launch_rectangle_and_name():
     random_features(rng, 2, W, p.sigma_range_m, p.peak_range)
     np.testing.assert_array_equal(sc.robots_m[:, 0], rng.uniform(10.0, 30.0, 40))
 
-
-# --- to_dict / save ------------------------------------------------------------------------------
 
 def test_to_dict_writes_only_what_differs_from_the_defaults():
     """``params`` holds exactly the overrides (N and F follow the lists, so never), then name, source
@@ -122,8 +123,6 @@ def test_save_writes_the_pinned_layout(tmp_path):
     assert (tmp_path / "s.json").read_text(encoding="utf-8") == SAVED
 
 
-# --- load ----------------------------------------------------------------------------------------
-
 def test_load_reads_utf8_whatever_the_locale(tmp_path):
     """Scenario files are UTF-8 JSON, also when the process runs in a C (ASCII) locale. Guards
     load__mutmut_4 (``read_text(encoding=None)``: the locale's encoding, here ASCII, so "Zürich"
@@ -151,8 +150,6 @@ def test_unreadable_file_message(tmp_path):
     assert str(e.value) == f"{missing}: cannot read scenario file (No such file or directory)"
 
 
-# --- non-finite numbers --------------------------------------------------------------------------
-
 @pytest.mark.parametrize("value,shown", [
     (float("inf"), "inf"),
     (float("nan"), "nan"),
@@ -167,12 +164,16 @@ def test_non_finite_coordinate_message(value, shown):
     assert str(e.value) == f"s.json: field 'robots[1]' must be a finite number, got {shown}"
 
 
-# --- check_coverable -----------------------------------------------------------------------------
-
 S = 2.0**-10  # a σ far below a cell (exact in binary, so "exactly 2σ from the border" is exact)
+
+
 R = 2 * S  # its reach at the default truncation of 2 σ
+
+
 OUTSIDE = ("s.json: the importance map is 0 everywhere (every feature lies outside the world [0, 256]² "
            "(beyond {t} σ)), so J(0) = 0 and J(t)/J(0) is undefined")
+
+
 TOO_SMALL = ("s.json: the importance map is 0 everywhere (its features' σ (smallest {s} m) or peaks are too "
              "small to give any cell importance), so J(0) = 0 and J(t)/J(0) is undefined")
 
@@ -228,3 +229,105 @@ def test_zero_map_uses_the_scenarios_truncation():
         check_coverable(feature, small(truncation_sigmas=1.0), "s.json")
     assert str(e.value) == OUTSIDE.format(t=1)
     check_coverable(feature, small(truncation_sigmas=2.0), "s.json")
+
+
+# --- Scenario.from_dict ---------------------------------------------------------------------------
+
+def doc(**kw) -> dict:
+    return {"features": [FEATURE], "robots": [[10.0, 20.0]], "params": {"world_size": W}, **kw}
+
+
+def refusal(d, *where) -> str:
+    with pytest.raises(ScenarioError) as e:
+        Scenario.from_dict(d, *where)
+    return str(e.value)
+
+
+def test_default_where_is_scenario():
+    """from_dict_1 / _2 (the default place misspelt) and from_dict_44 (message dropped)."""
+    assert refusal(doc(robots=[])) == "scenario: field 'robots' must list at least one [x, y]"
+    assert refusal(doc(robots=[]), "s.json") == "s.json: field 'robots' must list at least one [x, y]"
+
+
+@pytest.mark.parametrize("xy", [[0.0, 0.0], [0.5, 0.25], [W, W], [0.0, W]])
+def test_robots_on_the_closed_world_are_accepted(xy):
+    """from_dict_67 (``> 0``), _68 (``>= 1``), _69 (``< w``): the world is [0, W] inclusive."""
+    sc = Scenario.from_dict(doc(robots=[xy]))
+    assert sc.robots_m.tolist() == [xy]
+
+
+@pytest.mark.parametrize("xy,i", [([-0.001, 3.0], 0), ([3.0, W + 0.001], 0)])
+def test_robots_just_outside_are_refused(xy, i):
+    assert refusal(doc(robots=[xy])) == f"scenario: field 'robots[{i}]' = {xy} is outside the world [0, {W}]"
+
+
+def test_memory_refusal_names_the_file(monkeypatch):
+    """from_dict_85 (``check_fits(None)``), _86 / _87 (the message dropped)."""
+    monkeypatch.setattr(params_mod, "physical_memory_bytes", lambda: 2**20)
+    assert refusal(doc(), "s.json") == (
+        "s.json: N = 1 robots and F = 1 features on a 256 m world need at least 0.0 GiB for one "
+        "environment, more than this machine's 0.0 GiB")
+
+
+def test_optional_fields_are_kept_and_default_empty():
+    """from_dict_98 / _104 (seed dropped), _99 / _105 / _114.._121 (source dropped or read from the
+    wrong key), _108 / _110 / _113 (the absent name's default: ``"None"`` / ``"XXXX"``)."""
+    sc = Scenario.from_dict(doc(name="city", seed=5, source="osm"))
+    assert (sc.name, sc.seed, sc.source) == ("city", 5, "osm")
+    sc = Scenario.from_dict(doc())
+    assert (sc.name, sc.seed, sc.source) == ("", None, "")
+
+
+def test_feature_is_stored_as_x_y_sigma_peak():
+    """_features_63 (``mean[1]`` for x)."""
+    assert Scenario.from_dict(doc()).features.tolist() == [[100.0, 120.0, 40.0, 0.8]]
+
+
+def test_feature_mean_errors_name_the_feature():
+    """_features_27 (the name passed to ``_points`` dropped)."""
+    bad = {**FEATURE, "mean": [1.0, 2.0, 3.0]}
+    assert refusal(doc(features=[FEATURE, bad])) == \
+        "scenario: field 'features[1].mean[0]' must be [x, y], got [1.0, 2.0, 3.0]"
+
+
+@pytest.mark.parametrize("sigma,peak", [(0, 0.8), (40.0, 0), (-1.0, 0.8)])
+def test_sigma_and_peak_must_be_positive(sigma, peak):
+    """_features_49 (``sigma < 0``), _51 (``peak < 0``)."""
+    f = {**FEATURE, "sigma": sigma, "peak": peak}
+    assert refusal(doc(features=[f])) == \
+        f"scenario: field 'features[0]': sigma and peak must be > 0, got sigma={float(sigma)}, peak={float(peak)}"
+
+
+def test_small_sigma_is_accepted():
+    """_features_50 (``sigma <= 1`` refused)."""
+    assert _features([{**FEATURE, "sigma": 0.5}], "w")[0].tolist() == [100.0, 120.0, 0.5, 0.8]
+
+
+@pytest.mark.parametrize("sigma,peak,overflows", [
+    (1e150, 1e10, True),    # _56 (σ²/peak): 2π·1e300·1e10 overflows, 2π·1e300/1e10 does not
+    (1e200, 1.0, True),     # _57 (σ/σ·peak)
+    (1e154, 1.0, True),     # _59 (2/π): 2π·1e308 overflows, (2/π)·1e308 does not
+    (5e153, 1.0, False),    # _60 (3π): 2π·2.5e307 ≈ 1.6e308 is finite, 3π·2.5e307 is not
+])
+def test_mass_overflow_boundary(sigma, peak, overflows):
+    """_features_56, _57, _59, _60 (the mass computed otherwise), _61 (message dropped)."""
+    f = [{**FEATURE, "sigma": sigma, "peak": peak}]
+    if overflows:
+        with pytest.raises(ScenarioError) as e:
+            _features(f, "w")
+        assert str(e.value) == \
+            "w: field 'features[0]': sigma and peak are too large (the feature's mass 2πσ²·peak overflows)"
+    else:
+        assert _features(f, "w")[0].tolist() == [100.0, 120.0, sigma, peak]
+
+
+def test_with_params_changes_only_the_named_parameters():
+    """Guards ``Scenario.with_params``: a copy whose params differ only where asked, with the same
+    features and robots, the original untouched (mutants: ``replace(None, …)``, ``params=None``,
+    ``replace(**changes)``, changes dropped)."""
+    s = Scenario.from_dict(doc())
+    t = s.with_params(comm_radius_m=100.0)
+    assert t.params.comm_radius_m == 100.0 and s.params.comm_radius_m != 100.0
+    assert t.params.world_size == s.params.world_size == W
+    np.testing.assert_array_equal(t.features, s.features)
+    np.testing.assert_array_equal(t.robots_m, s.robots_m)

@@ -1,14 +1,16 @@
-"""RobotMaps' row sums after incremental updates: equal to a brute-force sum over each robot's own
-map, and bit-identical to a fresh full recompute, whatever path the robots took (world edges
-included, and sensor squares as wide as the world).
+"""RobotMaps: each robot's map is a float32 crop of what it sensed, and its row sums after incremental
+updates equal a brute-force sum over the robot's own map and are bit-identical to a fresh full
+recompute, whatever path the robots took (world edges included, and sensor squares as wide as the
+world).
 
-Written against the second batch of mutants mutmut left alive in ``madp/sim/robot_maps.py``; each
-test names the mutants it kills (``_refresh`` mutants are written ``_N``). The tests from
+Written against the mutants mutmut left alive in ``madp/sim/robot_maps.py``; each test names the
+mutants it kills (``_refresh`` mutants are written ``_N``). The tests from
 ``test_only_robots_that_moved_are_refreshed`` on are from the campaign on the numba simulator
 (2026-12-02): the incremental bookkeeping the module docstring promises (only the robots that moved
 are refreshed, nothing piles up while no block sums are asked for) and the sensed box that
-``resized_local_maps`` skips outside of.
-"""
+``resized_local_maps`` skips outside of."""
+
+from __future__ import annotations
 
 import numpy as np
 import pytest
@@ -185,3 +187,23 @@ def test_row_sums_take_whole_numbers_of_any_array_type(as_index):
     want = rm.row_sums(*q)
     got = rm.row_sums(*(as_index(a) for a in q))
     assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]) and want[0].any()
+
+
+def test_local_maps_are_float32_crops_of_what_was_sensed():
+    """A 64 m world, 16 m sensor, 32 m window: the crop around a robot is its sensed square of the
+    world map and zero elsewhere (inside or outside the world), float32. Guards
+    RobotMaps.local_maps__mutmut_4/_6 (float64 crops)."""
+    world = np.random.default_rng(0).random((64, 64)).astype(np.float32) + 0.5
+    maps = RobotMaps(world, 2, 16, 32)
+    cells = np.array([[20, 30], [2, 60]])
+    maps.sense(cells)
+    local = maps.local_maps(cells)
+    assert local.shape == (2, 32, 32) and local.dtype == np.float32
+    for n, (cx, cy) in enumerate(cells):
+        expect = np.zeros((32, 32), np.float32)
+        for a in range(32):
+            for b in range(32):
+                x, y = cx - 16 + a, cy - 16 + b
+                if 0 <= x < 64 and 0 <= y < 64 and abs(x - cx + 0.5) < 8 and abs(y - cy + 0.5) < 8:
+                    expect[a, b] = world[x, y]
+        np.testing.assert_array_equal(local[n], expect)

@@ -1,12 +1,14 @@
-"""``importance_map``'s contract: each feature adds peak·2πσ² times the Gaussian's integral over
-each cell inside the truncation disc (tested in float32, boundary included), the map is divided by
-its maximum only when that exceeds 1e-10, features outside the world are skipped without stopping
-the loop, and a σ below float32's range gives no warning.
+"""The importance map and the features it is made of (``madp.sim.idf``): each feature adds peak·2πσ²
+times the Gaussian's integral over each cell inside the truncation disc (tested in float32, boundary
+included), the map is divided by its maximum only when that exceeds 1e-10, features outside the world
+are skipped without stopping the loop, a σ below float32's range gives no warning, and the random
+features cover the given ranges.
 
-Written against the second batch of mutants mutmut left alive in ``madp/sim/idf.py``; each test
-names the mutants it kills (``importance_map`` mutants are written ``_N``). Expectations are
-computed here with ``math.erf``, independently of the module.
-"""
+Written against the mutants mutmut left alive in ``madp/sim/idf.py``; each test names the mutants it
+kills (``importance_map`` mutants are written ``_N``). Expectations are computed here with
+``math.erf``, independently of the module."""
+
+from __future__ import annotations
 
 import math
 import warnings
@@ -14,7 +16,7 @@ import warnings
 import numpy as np
 import pytest
 
-from madp.sim.idf import importance_map
+from madp.sim.idf import importance_map, random_features
 
 
 def cell_value(mx, my, sigma, peak, x, y):
@@ -92,3 +94,15 @@ def test_truncation_test_is_evaluated_in_float32():
     m = importance_map(np.array([[mx, 3.5, sigma, 1e-12]]), 16)
     assert m[3, 3] == pytest.approx(cell_value(mx, 3.5, sigma, 1e-12, 3, 3), rel=1e-9, abs=0)
     assert m[3, 4] == 0
+
+
+def test_random_features_cover_the_given_ranges():
+    """μ ~ U(0, W)², σ ~ U(σ range), peak ~ U(peak range): 400 draws on a 2 m world with σ in
+    [3, 4) and peaks in [5, 6) fill each range (some μ below 0.05 m and above 1.95 m). Guards
+    random_features__mutmut_6 (μ ~ U(0, 1)), _8 (μ ~ U(1, W)) and _16 (peak ~ U(0, 1))."""
+    f = random_features(np.random.default_rng(0), 400, 2.0, (3.0, 4.0), (5.0, 6.0))
+    assert f.shape == (400, 4)
+    mean, sigma, peak = f[:, :2], f[:, 2], f[:, 3]
+    assert (mean >= 0).all() and (mean < 2).all() and mean.min() < 0.05 and mean.max() > 1.95
+    assert (sigma >= 3).all() and (sigma < 4).all()
+    assert (peak >= 5).all() and (peak < 6).all()
