@@ -89,7 +89,8 @@ class _CaseRun:
     def __init__(self, case: TrainBenchCase, data: Path, seed: int, device: torch.device):
         from madp.data_schema.dataset import open_dataset
 
-        from .trainer import EMA, build_model, make_optimizer
+        from .optim import make_optimizer
+        from .trainer import EMA, build_model
 
         self.case, self.device = case, device
         cfg = self.cfg = resolve(case.model, case.preset, data=str(data), batch_size=case.batch_size, seed=seed)

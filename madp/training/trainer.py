@@ -43,11 +43,9 @@ from madp.models import EMA, MADP, lpac_config, madp_config
 
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
+from .optim import make_optimizer
+from .progress import EpochBar
 from .stream import ShardStream, StreamPosition, collate_swarms
-
-
-#: The optimizer implementation of :func:`make_optimizer` (measured with ``madp bench train``).
-DEFAULT_OPTIMIZER_IMPL = "fused"
 
 
 # --- environment ---------------------------------------------------------------------------------
@@ -100,21 +98,6 @@ def step_noise(raw, generator: torch.Generator, batch: dict, parts: int, num_rob
     k = raw.schedule.sample_timesteps(b * parts, device, generator)
     noise = torch.randn((b * parts, n, raw.config.action_dim), generator=generator, device=device, dtype=raw.dtype)
     return k.view(parts, b), noise.view(parts, b, n, -1)
-
-
-def make_optimizer(cfg: TrainConfig, params, impl: str = "default") -> torch.optim.Optimizer:
-    """AdamW (or Adam, ``cfg.optimizer``) at ``cfg.lr`` and ``cfg.weight_decay``.
-
-    ``impl``: ``loop`` (one parameter at a time: torch's default on CPU), ``foreach`` (one op over
-    all parameters per update term) or ``fused`` (one kernel per parameter group); ``default`` is
-    the one ``madp train`` uses."""
-    if impl == "default":
-        impl = DEFAULT_OPTIMIZER_IMPL
-    flags = {"loop": dict(foreach=False), "foreach": dict(foreach=True), "fused": dict(fused=True)}
-    if impl not in flags:
-        raise ValueError(f"optimizer implementation: expected one of {sorted(flags)} or default, got {impl!r}")
-    opt_cls = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
-    return opt_cls(params, lr=cfg.lr, weight_decay=cfg.weight_decay, **flags[impl])
 
 
 def batch_device(model: torch.nn.Module) -> torch.device:
@@ -420,7 +403,7 @@ class Trainer:
                                 collate_fn=collate_swarms,
                                 pin_memory=self.device.type == "cuda", persistent_workers=False,
                                 worker_init_fn=functools.partial(_loader_worker_init, os.getpid()))
-            bar = _bar(self.progress, batches, self.batches_done, f"epoch {self.epoch + 1}/{cfg.epochs}")
+            bar = EpochBar(self.progress, batches, self.batches_done, f"epoch {self.epoch + 1}/{cfg.epochs}")
             t_last, seen, loss_sum = time.perf_counter(), 0, 0.0
             for batch in loader:
                 if self.batches_done >= batches:
@@ -497,30 +480,6 @@ def _loader_worker_init(parent_pid: int, worker_id: int) -> None:
     """DataLoader workers end with the training process at once (the kernel's parent-death signal),
     not only at torch's 5 s watchdog check, which a busy worker reaches late."""
     die_with_parent(parent_pid)
-
-
-class _bar:
-    """Rich progress with loss and samples/s (a no-op when disabled)."""
-
-    def __init__(self, enabled: bool, total: int, done: int, label: str):
-        self.enabled = enabled
-        if enabled:
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                       TimeRemainingColumn)
-
-            self.p = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                              TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
-            self.p.start()
-            self.task = self.p.add_task(label, total=total, completed=done, info="")
-
-    def update(self, done: int, loss: float, rate: float) -> None:
-        if self.enabled:
-            self.p.update(self.task, completed=done, info=f"loss {loss:.4f} {rate:.1f} samples/s")
-
-    def close(self) -> None:
-        if self.enabled:
-            self.p.stop()
-            self.enabled = False
 
 
 def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:

@@ -4,7 +4,8 @@ dependent: only the timing-free relations are in the default run; the speed clai
 import pytest
 import torch
 
-from madp.models import LPAC, MADP, lpac_config, madp_config
+from madp.models import MADP, lpac_config, madp_config
+from madp.models.lpac import LPAC
 from madp.models.bench import bench_infer, random_swarm
 
 

@@ -10,7 +10,7 @@ import torch
 from madp.models import LPAC, MADP, lpac_config, madp_config
 from madp.training.bench import PHASES, TrainBenchCase, bench_train, format_train_bench
 from madp.training.config import resolve
-from madp.training.trainer import make_optimizer
+from madp.training.optim import make_optimizer
 from tests.conftest import tiny_dataset
 from tests.test_reliability_errors import cli
 
