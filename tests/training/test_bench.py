@@ -7,7 +7,8 @@ import json
 import pytest
 import torch
 
-from madp.models import LPAC, MADP, lpac_config, madp_config
+from madp.models import MADP, lpac_config, madp_config
+from madp.models.lpac import LPAC
 from madp.training.bench import PHASES, TrainBenchCase, bench_train, format_train_bench
 from madp.training.config import resolve
 from madp.training.optim import make_optimizer
