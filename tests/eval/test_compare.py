@@ -11,7 +11,8 @@ import torch
 from scipy import stats
 
 from madp.eval.runner import EvalConfig, run_suite
-from madp.models import LPAC, lpac_config
+from madp.models import lpac_config
+from madp.models.lpac import LPAC
 from madp.training.checkpoint import save_policy
 from tests.eval.conftest import META
 from tests.test_reliability_errors import assert_one_line, cli

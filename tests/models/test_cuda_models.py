@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from madp.models import LPAC, MADP, lpac_config, madp_config
+from madp.models import MADP, lpac_config, madp_config
+from madp.models.lpac import LPAC
 from madp.sim import CoverageEnv, Scenario
 
 pytestmark = pytest.mark.cuda
