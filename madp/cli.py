@@ -205,6 +205,7 @@ def eval_cmd(
     ddim_steps: Optional[int] = typer.Option(None, min=1, hidden=True, help="Old spelling of --sampler ddim --sampling-steps S."),
     eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),
+    frame: str = typer.Option("world", help="MADP: world (the world's axes) | d4 (a random rotation/reflection of the world per step, shared by the swarm)."),
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     video: int = typer.Option(0, min=0, help="Write MP4 videos of K environments per controller, spread over the suite's groups (each group's first, then each group's second, ...; cities: the first K cities) to OUT/<suite>/videos/."),
@@ -227,7 +228,7 @@ def eval_cmd(
     requested = tuple(c.strip() for c in controllers.split(",")) if controllers else DEFAULT
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
-    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise)
+    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device))

@@ -42,7 +42,7 @@ from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, a
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
-SETTING_DEFAULTS = {"fixed_noise": False, "video": 0, "device": "cpu"}
+SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "video": 0, "device": "cpu"}
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,7 @@ class EvalConfig:
     sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
     fixed_noise: bool = False
+    frame: str = "world"
     workers: int = 0
     ray: str | None = None  # run the jobs on Ray ("local", "auto" or an address: madp.io.ray_backend)
     record: int = 0
@@ -76,7 +77,7 @@ class EvalConfig:
         """MADP's :class:`madp.policies.SamplingSettings` of this evaluation."""
         from madp.policies import SamplingSettings
 
-        return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise)
+        return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise, self.frame)
 
     def checkpoint(self, controller: str) -> str | None:
         """The checkpoint this evaluation gives ``controller`` (``lpac`` / ``madp``; None: classical or the shipped one)."""
@@ -294,7 +295,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                       progress: bool) -> dict:
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
-                "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
+                "frame": cfg.frame, "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs], "device": cfg.device}
     checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
                    for k in CHECKPOINT_KINDS if getattr(cfg, k) and any(CONTROLLERS[c].kind == k for c in cfg.controllers)}
@@ -368,7 +369,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     curves = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "step", "cost")}
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
-                               "sampler", "sampling_steps", "fixed_noise")}
+                               "sampler", "sampling_steps", "fixed_noise", "frame")}
     sampling = {c: CONTROLLERS[c].settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
@@ -385,7 +386,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        sigma_lo=e.params.sigma_range_m[0], sigma_hi=e.params.sigma_range_m[1],
                        city=e.group if e.city_file else "", launch=e.launch,
                        sampler=sampling[c].get("sampler", ""), sampling_steps=sampling[c].get("sampling_steps", 0),
-                       fixed_noise=sampling[c].get("fixed_noise", False))
+                       fixed_noise=sampling[c].get("fixed_noise", False), frame=sampling[c].get("frame", ""))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),

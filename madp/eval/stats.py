@@ -338,6 +338,8 @@ def sampling_used(results: pa.Table | Mapping[str, Any]) -> dict[str, dict[str, 
                   else [p[1] for p in pairs]}
         if has_column(results, "fixed_noise") and column(results, "fixed_noise")[sel].astype(bool).any():
             out[c]["fixed_noise"] = True
+        if has_column(results, "frame") and (column(results, "frame")[sel].astype(str) == "d4").any():
+            out[c]["frame"] = "d4"
     return out
 
 

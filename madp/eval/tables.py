@@ -95,4 +95,5 @@ def sampling_markdown(sampling: Mapping[str, Mapping[str, Any]]) -> str:
     return "MADP sampling: " + "; ".join(
         f"{display_name(c)}: {SAMPLER_NAMES.get(v['sampler'], v['sampler'])}, S = {v['sampling_steps']}"
         + (", initial noise fixed per episode" if v.get("fixed_noise") else "")
+        + (", in a random rotation/reflection of the world per step" if v.get("frame") == "d4" else "")
         for c, v in sampling.items()) + "."

@@ -16,6 +16,7 @@ import torch
 
 from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
+from madp.models.symmetry import D4_SIZE, inverse_actions, transform_state
 
 from .swarm import clip_speed, swarm_tensors
 
@@ -32,25 +33,47 @@ def noise_generator(seed: int) -> torch.Generator:
     return g
 
 
+#: The frames MADP's model may see the world in (:class:`SamplingSettings`).
+FRAMES = ("world", "d4")
+
+
+def frame_element(seed: int, step: int) -> int:
+    """The element of D4 (0..7) an episode of seed ``seed`` acts in at control step ``step``
+    (``frame="d4"``): a hash of both, independent of the sampling noise."""
+    return int(np.random.SeedSequence([int(seed) & ((1 << 63) - 1), int(step), 0xD4]).generate_state(1)[0] % D4_SIZE)
+
+
 @dataclass(frozen=True)
 class SamplingSettings:
     """How MADP samples its actions: the reverse diffusion (``sampler``, ``sampling_steps`` S, DDIM's
     ``eta``; see :mod:`madp.models.samplers`) and whether each robot's initial noise is drawn once
-    per episode (``fixed_noise``). Checked on construction; the defaults are the measured best."""
+    per episode (``fixed_noise``), and the frame the model sees the world in (``frame``):
+
+    * ``world``: the world's own axes;
+    * ``d4``: at every control step the swarm acts in one of the world's 8 rotations and reflections
+      (:mod:`madp.models.symmetry`), drawn from the episode's seed and the step count (what robots
+      sharing a seed can all compute): the state is moved by it, the model samples there, and the
+      actions are moved back. The policy's action distribution is then exactly equivariant to the
+      world's symmetries, and a direction the model prefers in its own axes changes every step.
+
+    Checked on construction; the defaults are the measured best."""
 
     sampler: str = DEFAULT_SAMPLER
     sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
     fixed_noise: bool = False
+    frame: str = "world"
 
     def __post_init__(self) -> None:
         check_sampler(self.sampler, self.sampling_steps, self.eta)
+        if self.frame not in FRAMES:
+            raise SettingError("frame", f"expected one of {', '.join(FRAMES)}, got {self.frame!r}")
 
     @classmethod
     def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
-           fixed_noise: bool = False) -> "SamplingSettings":
+           fixed_noise: bool = False, frame: str = "world") -> "SamplingSettings":
         """The settings with ``None`` standing for the default sampler and S."""
-        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise)
+        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame)
 
     def as_dict(self) -> dict:
         """What names the sampling in tables, recordings and a suite's config."""
@@ -74,7 +97,7 @@ class MADPPolicy:
             raise SettingError("sampling_steps", f"expected at most {model.schedule.num_train_steps} (the model's "
                                f"diffusion steps K), got {sampling.sampling_steps}")
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
-        self.sampler, self.fixed_noise = sampling.sampler, bool(sampling.fixed_noise)
+        self.sampler, self.fixed_noise, self.frame = sampling.sampler, bool(sampling.fixed_noise), sampling.frame
         self._fixed: dict[int, torch.Tensor] = {}
         self.stochastic = self.sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
         self.device = torch.device(device)
@@ -98,9 +121,22 @@ class MADPPolicy:
         steps = torch.stack([torch.randn(shape, generator=g) for _ in range(self.num_steps)]) if self.stochastic else None
         return first.to(self.device), None if steps is None else steps.to(self.device)
 
-    def _sample(self, obs: torch.Tensor, pos: torch.Tensor, noise: torch.Tensor, step_noise: torch.Tensor | None) -> torch.Tensor:
+    def _sample(self, obs: torch.Tensor, pos: torch.Tensor, noise: torch.Tensor, step_noise: torch.Tensor | None,
+                envs: list["CoverageEnv"]) -> torch.Tensor:
+        """Actions ``[B, N, 2]`` (m/s, float64 on the CPU) for ``obs [B, N, 4, S, S]``, ``pos [B, N, 2]``,
+        the states of ``envs`` (one per b, or one for all: several samples of one state)."""
         fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
-        return fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
+        if self.frame == "world":
+            u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
+            return self.model.denormalize_actions(u).double().cpu()
+        gs = [frame_element(e.scenario.seed, e.steps) for e in envs]
+        gs = gs * len(obs) if len(gs) == 1 else gs
+        w = float(envs[0].params.world_size)
+        moved = [transform_state(o, x, g, w) for o, x, g in zip(obs, pos, gs)]
+        u = fn(torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved]), self.num_steps, self.eta,
+               sampler=self.sampler, noise=noise, step_noise=step_noise)
+        u = self.model.denormalize_actions(u).double().cpu()
+        return torch.stack([inverse_actions(ub, g) for ub, g in zip(u, gs)])
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
@@ -116,7 +152,7 @@ class MADPPolicy:
         pos = pos[None].expand(num_samples, *pos.shape)
         shape = (num_samples, env.num_robots, self.model.config.action_dim)
         noise, steps = self._noise(generator, shape, own and self.fixed_noise and num_samples == 1)
-        u = self.model.denormalize_actions(self._sample(obs, pos, noise, steps)).double().cpu().numpy()
+        u = self._sample(obs, pos, noise, steps, [env]).numpy()
         return np.stack([clip_speed(x, env.params.max_speed_mps) for x in u])
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
@@ -134,5 +170,5 @@ class MADPPolicy:
         noise = [self._noise(g, shape, self.fixed_noise) for g in generators]
         first = torch.cat([n[0] for n in noise])
         steps = torch.cat([n[1] for n in noise], dim=1) if self.stochastic else None
-        u = self.model.denormalize_actions(self._sample(obs, pos, first, steps)).double().cpu().numpy()
+        u = self._sample(obs, pos, first, steps, envs).numpy()
         return np.stack([clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])

@@ -18,7 +18,7 @@ rectangles are fixed in :mod:`madp.eval.suites` and never drawn here):
 
 The world's symmetries (the dihedral group D4 of the square): :func:`d4_matrix` and
 :func:`d4_points` move points by element ``g`` in 0..7, bits ``(swap, flip_x, flip_y)``: the
-axis swap first, then the reflections (``g = 0`` is the identity). :mod:`madp.training.augment`
+axis swap first, then the reflections (``g = 0`` is the identity). :mod:`madp.models.symmetry`
 applies the same elements to samples and :meth:`Scenario.d4_image` to scenarios.
 """
 

@@ -49,7 +49,7 @@ class TrainConfig:
     max_steps_per_epoch: int = 0  # 0: the whole split
     stop_after_steps: int = 0  # stop (after checkpointing) once this many steps are done; 0: never
     stop_after_minutes: float = 0.0  # stop (after checkpointing) at the first step after this many minutes of fit(); 0: never
-    augment: str = "none"  # none | d4 (training samples only; see madp.training.augment)
+    augment: str = "none"  # none | d4 (training samples only; see madp.models.symmetry)
     init: str = ""  # start from this policy.safetensors' weights (same model and preset), e.g. for DAgger rounds
     edge_weight: str = "binary"  # LPAC-K3's communication graph: binary (the library's) | gaussian
     compile: bool = False  # MADP through torch.compile (inductor): faster steps after a compile at the start

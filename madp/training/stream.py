@@ -36,7 +36,7 @@ from torch.utils.data import IterableDataset, default_collate, get_worker_info
 from madp.data_schema import Manifest, iter_shard
 from madp.errors import InputError, SettingError
 
-from .augment import AUGMENTATIONS, D4_SIZE, transform_sample
+from madp.models.symmetry import AUGMENTATIONS, D4_SIZE, transform_sample
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ class ShardStream(IterableDataset):
     ``actions [N, 2]`` (m/s, unnormalised), and the sample's ``episode_id`` and ``step``.
 
     ``augment="d4"``: each sample is replaced by one of its 8 images under the world's rotations
-    and reflections (:mod:`madp.training.augment`), drawn per sample from the stream's seed.
+    and reflections (:mod:`madp.models.symmetry`), drawn per sample from the stream's seed.
 
     ``batch_size`` only rounds each stream's count down to whole batches (so every DataLoader
     worker hands out whole batches and every rank the same number).

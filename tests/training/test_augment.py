@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
-from madp.training.augment import D4_SIZE, d4_matrix, transform_sample
+from madp.models.symmetry import D4_SIZE, d4_matrix, transform_sample
 
 
 def expert_samples(scenario: Scenario, steps: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:

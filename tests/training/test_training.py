@@ -57,7 +57,7 @@ def test_d4_augmented_stream_is_an_image_of_the_plain_one_and_resumes_exactly(da
     """--augment d4: the k-th sample is one of the 8 images of the k-th plain sample (same order,
     same world size as the dataset's 256 m), about 7/8 of them changed, and a resumed epoch draws
     the same transforms (fails if skipped samples did not consume their draws)."""
-    from madp.training.augment import transform_sample
+    from madp.models.symmetry import transform_sample
 
     m = open_dataset(dataset)
     plain = list(ShardStream(dataset, m, "train", seed=5, batch_size=4, buffer_size=8))

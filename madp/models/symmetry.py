@@ -16,6 +16,10 @@ exactly: a reflection sends cell j to ``W-1-j`` and the rounded position c to ``
 An element is ``g`` in 0..7, bits ``(swap, flip_x, flip_y)``: ``A = F S`` with S the axis swap
 (if ``g & 1``) applied first, then F negating x (``g & 2``) and y (``g & 4``). ``g = 0`` is the
 identity. Rounding of positions to cells can differ at exact ties only (measure zero).
+
+Training applies the elements to samples (``madp train --augment d4``); MADP's policy applies them
+to the state it acts on and the inverse to its actions (``frame="d4"``,
+:class:`madp.policies.SamplingSettings`): :func:`transform_state` and :func:`inverse_actions`.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from torch import Tensor
 
 from madp.sim.launch import D4_SIZE, d4_matrix
 
-__all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "AUGMENTATIONS"]
+__all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "transform_state", "inverse_actions", "AUGMENTATIONS"]
 
 AUGMENTATIONS = ("none", "d4")
 
@@ -36,6 +40,19 @@ def _vectors(v: Tensor, g: int) -> Tensor:
         v = v.flip(-1)
     sign = torch.tensor([-1.0 if g & 2 else 1.0, -1.0 if g & 4 else 1.0], dtype=v.dtype, device=v.device)
     return v * sign
+
+
+def inverse_actions(actions: Tensor, g: int) -> Tensor:
+    """``A^-1 u = A^T u`` for ``actions [..., 2]``: an action chosen in the image g of the world, in
+    the world's own axes."""
+    a = torch.as_tensor(d4_matrix(g), dtype=actions.dtype, device=actions.device)
+    return actions @ a
+
+
+def transform_state(obs: Tensor, pos_m: Tensor, g: int, world_size: float) -> tuple[Tensor, Tensor]:
+    """Element g applied to a state: ``obs [..., N, 4, S, S]`` and ``pos_m [..., N, 2]``."""
+    o, x, _ = transform_sample(obs, pos_m, pos_m, g, world_size)
+    return o, x
 
 
 def transform_sample(obs: Tensor, pos_m: Tensor, actions: Tensor, g: int, world_size: float = 1024.0
