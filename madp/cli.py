@@ -19,7 +19,7 @@ from typing import List, Optional, Tuple
 import typer
 
 from madp.cli_main import ray_option
-from madp.controllers import DEFAULT, NAMES
+from madp.controllers import DEFAULT, NAMES, parse_controllers
 from madp.errors import SettingError
 from madp.io.atomic import write_json_atomic
 
@@ -197,7 +197,7 @@ def eval_cmd(
     suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
-    controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint)."),
+    controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint); KIND:NAME=PATH adds a learned controller with its own checkpoint, e.g. madp:r4=runs/r4/policy.safetensors (shown as madp:r4)."),
     lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
     madp: Optional[Path] = typer.Option(None, help="MADP policy.safetensors (default: the shipped one)."),
     sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (README, Fast sampling)."),
@@ -225,13 +225,14 @@ def eval_cmd(
     from madp.policies.device import resolve_device
 
     suites = suite_names(suite)
-    requested = tuple(c.strip() for c in controllers.split(",")) if controllers else DEFAULT
+    requested, named = parse_controllers(controllers) if controllers else (DEFAULT, {})
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
     sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=ray,
-                     record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device))
+                     record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
+                     named=tuple(named.items()))
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)

@@ -16,8 +16,9 @@ than one group) :func:`compare_runs` gives
 * wins k/n: the environments on which the run ends strictly below the baseline (ties are counted
   apart in the JSON).
 
-A controller is paired by its name: ``madp`` of one run with ``madp`` of the other (the runs'
-checkpoints or sampler settings are what differs; :func:`markdown` names the settings that do).
+A controller is paired by its name: ``madp`` of one run with ``madp`` of the other, a named one
+(``madp:r4``, :mod:`madp.controllers`) with the same name (the runs' checkpoints or sampler settings
+are what differs; :func:`markdown` names the settings that do, ``madp:r4 checkpoint`` among them).
 
 :func:`write_compare` writes ``compare.md``, ``compare.json`` and ``compare.png`` (the paired
 differences per group with their intervals, :func:`madp.eval.compare_plot.plot_paired`).

@@ -1,5 +1,9 @@
-"""PNG plots of a suite (Agg, 120 dpi): cost vs step with a per-step t band, the ``sigma`` box plots,
-the ``cities`` heat map and the ``scale`` improvement matrices.
+"""PNG plots of a suite (Agg, 120 dpi): cost vs step with its 95 % band (mean ± 1.96·SE), the ``sigma`` box plots,
+the ``cities`` heat map (each city's best deployable controller marked, as the paper's Fig. 5) and the
+``scale`` improvement matrices (the two panels of the paper's Fig. 7, on one colour scale).
+
+Each plot is drawn by a ``*_figure`` function that returns the :class:`matplotlib.figure.Figure` (what
+tests inspect: the band, the markers) and written by a ``plot_*`` function.
 
 The plots use :class:`matplotlib.figure.Figure` with an explicit Agg canvas, so importing this module
 neither selects nor touches the global pyplot backend.
@@ -19,12 +23,15 @@ from madp.controllers import CONTROLLERS, display_name
 
 from .stats import CONFIDENCE, finite, n_range, natural_key
 
-__all__ = ["color_map", "group_slug", "plot_cities_heatmap", "plot_cost", "plot_scale_improvement",
-           "plot_sigma_boxplot", "unique_slugs"]
+__all__ = ["BEST_MARKER", "cities_heatmap_figure", "color_map", "cost_figure", "group_slug", "plot_cities_heatmap",
+           "plot_cost", "plot_scale_improvement", "plot_sigma_boxplot", "scale_improvement_figure", "scale_limit",
+           "unique_slugs"]
 
 #: Colours of controllers that are not in the registry.
 _EXTRA_COLORS = ("#2ca02c", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f")
 _DPI = 120
+#: The mark of a city's best controller on the cities heat map (the paper's red dot).
+BEST_MARKER = {"marker": "o", "s": 36, "color": "#e41a1c", "edgecolors": "white", "linewidths": 0.8, "zorder": 3}
 
 
 def group_slug(name: str) -> str:
@@ -72,7 +79,14 @@ def _save(fig, path: Path) -> Path:
 
 def plot_cost(path: Path, bands: Mapping[str, Mapping[str, np.ndarray]], title: str,
                colors: Mapping[str, str]) -> Path:
-    """Mean cost vs step with shaded interval, one line per controller."""
+    """Write :func:`cost_figure` to ``path``."""
+    return _save(cost_figure(bands, title, colors), path)
+
+
+def cost_figure(bands: Mapping[str, Mapping[str, np.ndarray]], title: str, colors: Mapping[str, str]):
+    """Mean cost vs step, one line per controller, with its 95 % band shaded (as the paper's Fig. 3):
+    ``bands`` from :func:`madp.eval.stats.cost_curve_bands`, the shaded area between ``lo`` and ``hi``
+    (mean ± 1.96·SE over the environments at each step) drawn in the order of ``bands``."""
     fig = _new_figure(8.0, 5.0)
     ax = fig.add_subplot()
     top = 1.0
@@ -90,10 +104,10 @@ def plot_cost(path: Path, bands: Mapping[str, Mapping[str, np.ndarray]], title: 
     ax.set_xlim(left=0)
     ax.grid(True, alpha=0.3)
     ax.set_title(title)
-    ax.legend(loc="upper right", fontsize=9, title=f"mean, shaded {CONFIDENCE:.0%} t interval",
+    ax.legend(loc="upper right", fontsize=9, title=f"mean; shaded {CONFIDENCE:.0%} band, mean ± 1.96·SE over environments",
               title_fontsize=8)
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
 
 
 def _annotated_heatmap(ax, mat: np.ndarray, row_labels: Sequence[str], col_labels: Sequence[str],
@@ -168,7 +182,17 @@ def plot_sigma_boxplot(path: Path, final: np.ndarray, group: np.ndarray, control
 
 
 def plot_cities_heatmap(path: Path, summary: Mapping[str, Any], suite: str) -> Path | None:
-    """City × controller heat map of mean final cost, with the suite mean as a last row."""
+    """Write :func:`cities_heatmap_figure` to ``path``; None when there is nothing to draw."""
+    fig = cities_heatmap_figure(summary, suite)
+    return None if fig is None else _save(fig, path)
+
+
+def cities_heatmap_figure(summary: Mapping[str, Any], suite: str):
+    """City × controller heat map of mean final cost, with the suite mean as a last row. With
+    ``summary["best"]`` (:func:`madp.eval.stats.best_per_group`) a red dot marks each city's best
+    deployable controller (the paper's Fig. 5) and each column says in how many cities it is best; an
+    oracle's column (the clairvoyant expert) is drawn but marked "not counted". Darker is better (lower
+    cost), as in the paper."""
     controllers, groups = summary["controllers"], summary["groups"]
     if not controllers or not groups:
         return None
@@ -185,22 +209,53 @@ def plot_cities_heatmap(path: Path, summary: Mapping[str, Any], suite: str) -> P
     vmin, vmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
     if vmax - vmin < 1e-9:
         vmin, vmax = vmin - 0.05, vmax + 0.05
-    im = _annotated_heatmap(ax, mat, rows, [display_name(c) for c in controllers], lambda v: f"{v:.3f}",
-                            "viridis_r", vmin, vmax)
+    best = summary.get("best")
+    labels = [display_name(c) for c in controllers]
+    if best:
+        labels = [f"{lab}\nbest in {best['counts'][c]}/{best['groups']}" if c in best["counts"] else f"{lab}\n(not counted)"
+                  for lab, c in zip(labels, controllers)]
+    im = _annotated_heatmap(ax, mat, rows, labels, lambda v: f"{v:.3f}", "viridis", vmin, vmax)  # darker: better (the paper's)
     ax.axhline(len(groups) - 0.5, color="white", lw=3)
+    title = f"{suite}: final cost per city ({len(groups)} cities, n = {_n_env(summary)} env each)"
+    if best:
+        cells = [(controllers.index(c), groups.index(g)) for g, cs in best["best"].items() for c in cs]
+        xy = np.array(cells, dtype=float).reshape(-1, 2)
+        ax.scatter(xy[:, 0] + 0.32, xy[:, 1], **BEST_MARKER)
+        title += "\nred dot: the city's best controller" + (" (the clairvoyant, an oracle, not counted)"
+                                                            if best["excluded"] else "")
     fig.colorbar(im, ax=ax, label="final normalised cost J(T) / J(0)", shrink=0.8)
-    n_env = n_range(s["n"] for g in groups for s in by_group.get(g, {}).values())
-    ax.set_title(f"{suite}: final cost per city ({len(groups)} cities, n = {n_env} env each)")
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
 
 
-def plot_scale_improvement(path: Path, m: Mapping[str, Any], suite: str) -> Path | None:
-    """N × F heat map of the relative improvement of MADP over one baseline."""
+def _n_env(summary: Mapping[str, Any]) -> str:
+    """The environments per (group, controller) of a summary, as a number or a range."""
+    return n_range(s["n"] for g in summary["groups"] for s in summary["by_group"].get(g, {}).values())
+
+
+def scale_limit(matrices: Iterable[Mapping[str, Any]]) -> float:
+    """The colour limit ±L that the ``scale`` improvement heat maps share (the largest |improvement|,
+    at least 5 %), so the panels against DCVT and against LPAC-K3 read on one scale as in the paper."""
+    vals = [np.abs(np.asarray(m["improvement"], dtype=float)) for m in matrices]
+    finite_vals = [v[np.isfinite(v)] for v in vals]
+    return max([0.05] + [float(v.max()) for v in finite_vals if v.size])
+
+
+def plot_scale_improvement(path: Path, m: Mapping[str, Any], suite: str, lim: float | None = None) -> Path | None:
+    """Write :func:`scale_improvement_figure` to ``path``; None when the matrix has no finite cell."""
+    fig = scale_improvement_figure(m, suite, lim)
+    return None if fig is None else _save(fig, path)
+
+
+def scale_improvement_figure(m: Mapping[str, Any], suite: str, lim: float | None = None):
+    """N × F heat map of the relative improvement (B̄ − M̄)/B̄ of MADP over one baseline (a
+    :func:`madp.eval.stats.scale_improvement_matrix`), coloured on ±``lim`` (default: this matrix's
+    :func:`scale_limit`; the report passes the limit of both baselines, one scale for both panels)."""
     imp = np.asarray(m["improvement"], dtype=float)
     if not np.isfinite(imp).any():
         return None
-    lim = max(0.05, float(np.nanmax(np.abs(imp))))
+    lim = scale_limit([m]) if lim is None else lim
     fig = _new_figure(max(5.5, 2.2 + 1.1 * imp.shape[1]), max(4.0, 1.8 + 0.75 * imp.shape[0]))
     ax = fig.add_subplot()
     im = _annotated_heatmap(ax, imp, [str(n) for n in m["num_robots"]], [str(f) for f in m["num_features"]],
@@ -214,4 +269,4 @@ def plot_scale_improvement(path: Path, m: Mapping[str, Any], suite: str) -> Path
     ax.set_title(f"{suite}: {display_name(m['method'])} vs {display_name(m['baseline'])}, relative improvement "
                  f"(n = {n} envs per cell)", fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return fig

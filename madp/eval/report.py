@@ -20,10 +20,13 @@ The evaluation runner writes two Parquet tables into a suite directory ``runs/ev
   :mod:`madp.eval.paper`; a second table with the mean wall time per control step; for the ``scale``
   suite the relative-improvement matrices) followed by links to the plots.
 * PNG plots (:mod:`madp.eval.plots`): ``cost_<group-slug>.png`` per group (mean cost vs step per
-  controller with a shaded per-step 95 % t band across environments), ``cost_all.png`` when the
+  controller with its shaded per-step 95 % band, mean ± 1.96·SE across environments, as the paper's
+  Fig. 3), ``cost_all.png`` when the
   suite has more than ``all_threshold`` groups (default 8), and per suite ``sigma_boxplot.png``,
-  ``cities_heatmap.png`` or ``scale_improvement_<baseline>.png`` (baseline ``dcvt`` / ``lpac``; MADP
-  is ``madp`` when present, else ``madp_central``: the first controller of kind ``madp``).
+  ``cities_heatmap.png`` (a red dot on each city's best deployable controller; the summary's "best in
+  k of n cities") or the paper's Fig. 7 as ``scale_improvement_dcvt.png`` (left: MADP over DCVT) and
+  ``scale_improvement_lpac.png`` (right: over LPAC-K3), on one colour scale, each drawn when its
+  baseline ran (MADP is ``madp`` when present, else ``madp_central``).
 
 Statistics, tables, plots and the paper's numbers live in their own modules; this one reads the
 tables and writes the files.
@@ -43,7 +46,8 @@ import pyarrow.parquet as pq
 from madp.controllers import display_name
 
 from .paper import PAPER_CONTROLLERS, PAPER_RESULTS
-from .plots import color_map, plot_cities_heatmap, plot_cost, plot_scale_improvement, plot_sigma_boxplot, unique_slugs
+from .plots import color_map, plot_cities_heatmap, plot_cost, plot_scale_improvement, plot_sigma_boxplot, scale_limit, \
+    unique_slugs
 from .stats import CONFIDENCE, column, cost_curve_bands, has_column, order_controllers, order_groups, sampling_used, \
     select_suite, summarize
 from .tables import markdown_table, sampling_markdown
@@ -149,8 +153,10 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
     elif suite == "cities":
         record(plot_cities_heatmap(suite_dir / "cities_heatmap.png", summary, suite))
     elif suite == "scale":
-        for baseline, m in (summary.get("scale_improvement") or {}).items():
-            record(plot_scale_improvement(suite_dir / f"scale_improvement_{baseline}.png", m, suite))
+        matrices = summary.get("scale_improvement") or {}
+        lim = scale_limit(matrices.values())
+        for baseline, m in matrices.items():
+            record(plot_scale_improvement(suite_dir / f"scale_improvement_{baseline}.png", m, suite, lim))
 
     # Markdown.
     md = [markdown_table(summary, suite).rstrip("\n")]

@@ -2,8 +2,10 @@
 
 Layout of ``OUT/<suite>/``::
 
-    config.json            suite, steps, controllers, MADP sampler settings, checkpoint checksums
-    jobs/<env>-<controller>.npz   one finished rollout: cost curve, step times (written atomically)
+    config.json            suite, steps, controllers, MADP sampler settings, checkpoint paths and checksums
+                           (per kind, ``lpac`` / ``madp``, and per named controller, ``madp:r4``)
+    jobs/<env>-<controller>.npz   one finished rollout: cost curve, step times (written atomically;
+                                  a named controller ``madp:r4`` is ``madp@r4`` in file names)
     curves.parquet         normalised cost per (group, env, controller, step)
     results.parquet        final cost and wall time per control step per (group, env, controller)
     summary.md, summary.json, *.png      from :mod:`madp.eval.report`
@@ -33,7 +35,8 @@ from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
 from madp.io.ray_backend import import_ray, ray_imap_unordered
 from madp.io.workers import die_with_parent
-from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, make_controller
+from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, controller_info, file_stem, \
+    is_named, make_controller
 from madp.errors import InputError, SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
 from madp.sim import CoverageEnv
@@ -54,6 +57,7 @@ class EvalConfig:
     controllers: tuple[str, ...] = NAMES
     lpac: str | None = None  # checkpoint paths (None: the shipped ones, if any)
     madp: str | None = None
+    named: tuple[tuple[str, str], ...] = ()  # (named controller "madp:r4", its checkpoint path)
     sampler: str = DEFAULT_SAMPLER
     sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
@@ -80,8 +84,14 @@ class EvalConfig:
         return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise, self.frame)
 
     def checkpoint(self, controller: str) -> str | None:
-        """The checkpoint this evaluation gives ``controller`` (``lpac`` / ``madp``; None: classical or the shipped one)."""
-        info = CONTROLLERS[controller]
+        """The checkpoint this evaluation gives ``controller``: a named one's own (``madp:r4``), else its
+        kind's (``lpac`` / ``madp``; None: classical or the shipped one)."""
+        named = dict(self.named)
+        if controller in named:
+            return named[controller]
+        if is_named(controller):
+            raise SettingError("controllers", f"{controller}: no checkpoint given; expected {controller}=PATH")
+        info = controller_info(controller)
         return getattr(self, info.kind) if info.learned else None
 
     def controller(self, name: str, spec: EnvSpec):
@@ -100,7 +110,12 @@ def video_envs(envs: list[EnvSpec], k: int) -> list[EnvSpec]:
 
 
 def video_path(suite_dir: Path, spec: EnvSpec, controller: str) -> Path:
-    return suite_dir / "videos" / f"{spec.key}-{controller}.mp4"
+    return suite_dir / "videos" / f"{spec.key}-{file_stem(controller)}.mp4"
+
+
+def job_path(suite_dir: Path, spec: EnvSpec, controller: str) -> Path:
+    """The job file of ``controller`` on one environment (:func:`madp.controllers.file_stem`)."""
+    return suite_dir / "jobs" / f"{spec.key}-{file_stem(controller)}.npz"
 
 
 def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, record: bool = False,
@@ -110,7 +125,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     scenario = spec.scenario()
     env = CoverageEnv(scenario)
     ctrl = cfg.controller(controller, spec)
-    info, steps = CONTROLLERS[controller], cfg.steps
+    info, steps = controller_info(controller), cfg.steps
     costs, timing = Costs(steps), Timing(steps)
     hooks: list[Hook] = [costs, timing]
     if record:
@@ -133,14 +148,14 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
         from .record import write_rollout_mcap
 
         (suite_dir / "rollouts").mkdir(parents=True, exist_ok=True)
-        write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{controller}.mcap", env.world_map,
+        write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{file_stem(controller)}.mcap", env.world_map,
                            positions.positions_m[0], actions.actions_mps[0], controller, env.params.dt_s,
                            samples_mps=samples.samples_mps if info.samples else None, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
                            extra_metadata=info.settings(cfg.sampling))
     if video:
         frames.write()
-    _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs.cost[0], timing.step_s, env.num_robots,
+    _save_job(job_path(suite_dir, spec, controller), costs.cost[0], timing.step_s, env.num_robots,
               len(scenario.features))
     return {"key": spec.key, "controller": controller}
 
@@ -179,7 +194,7 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
     for f in hooks[2:]:
         f.write()
     for i, (spec, env) in enumerate(zip(specs, envs)):
-        _save_job(suite_dir / "jobs" / f"{spec.key}-{controller}.npz", costs.cost[i], timing.step_s, env.num_robots,
+        _save_job(job_path(suite_dir, spec, controller), costs.cost[i], timing.step_s, env.num_robots,
                   len(env.scenario.features))
     return [{"key": s.key, "controller": controller} for s in specs]
 
@@ -194,7 +209,7 @@ def plan_jobs(envs: list[EnvSpec], controllers: tuple[str, ...], suite_dir: Path
     finished = {p.name for p in (suite_dir / "jobs").glob("*.npz")}
 
     def done(e: EnvSpec, c: str) -> bool:
-        return f"{e.key}-{c}.npz" in finished
+        return job_path(suite_dir, e, c).name in finished
 
     tasks = []
     for c in controllers:
@@ -232,17 +247,31 @@ def _worker(args):
 
 
 def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit: bool) -> tuple[EvalConfig, tuple[str, ...]]:
-    """Resolve checkpoints; drop learned controllers without one unless they were asked for."""
+    """Resolve checkpoints; drop learned controllers without one unless they were asked for. A named
+    controller (``madp:r4``) must have its checkpoint in ``cfg.named``; each checkpoint is loaded once
+    here, so a missing or incompatible file is a one-line error before anything runs."""
     from madp.policies import load, shipped_checkpoint
 
-    unknown = [c for c in requested if c not in NAMES]
+    unknown = [c for c in requested if not is_named(c) and c not in NAMES]
     if unknown:
         raise SettingError("controllers", f"unknown {unknown}; expected some of {list(NAMES)}")
+    for c in filter(is_named, requested):
+        try:
+            controller_info(c)
+        except SettingError as e:
+            raise SettingError("controllers", str(e).partition(": ")[2]) from None
+    if len(set(requested)) != len(requested):
+        raise SettingError("controllers", f"a controller is given twice in {list(requested)}")
     paths = {k: getattr(cfg, k) for k in CHECKPOINT_KINDS}  # EvalConfig has a field per checkpoint kind
     keep = []
     for c in requested:
-        kind = CONTROLLERS[c].kind
-        if kind in paths:
+        kind = controller_info(c).kind
+        if is_named(c):
+            try:
+                load(cfg.checkpoint(c), kind)
+            except FileNotFoundError:
+                raise InputError(f"{cfg.checkpoint(c)}: checkpoint not found (controller {c})") from None
+        elif kind in paths:
             path = paths[kind] or (str(shipped_checkpoint(kind)) if shipped_checkpoint(kind) else None)
             if path is None:
                 if explicit:
@@ -297,8 +326,11 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
                 "frame": cfg.frame, "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs], "device": cfg.device}
-    checkpoints = {k: {"path": getattr(cfg, k), "sha256": sha256_file(getattr(cfg, k))}
-                   for k in CHECKPOINT_KINDS if getattr(cfg, k) and any(CONTROLLERS[c].kind == k for c in cfg.controllers)}
+    # The checkpoints this run uses: per kind (the plain controllers') and per named controller.
+    plain_kinds = {controller_info(c).kind for c in cfg.controllers if not is_named(c)}
+    used = [(k, getattr(cfg, k)) for k in CHECKPOINT_KINDS if getattr(cfg, k) and k in plain_kinds]
+    used += [(c, cfg.checkpoint(c)) for c in cfg.controllers if is_named(c)]
+    checkpoints = {k: {"path": path, "sha256": sha256_file(path)} for k, path in used}
     cfg_file = suite_dir / "config.json"
     try:
         old = _read_config(cfg_file)
@@ -320,8 +352,8 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
             if changed:
                 clear_owned(suite_dir, owned_files(suite_dir))
             else:
-                stale = [c for c in LEARNED if CONTROLLERS[c].kind in retrained]
-                for c in stale:
+                stale = [c for c in LEARNED if CONTROLLERS[c].kind in retrained] + [c for c in retrained if is_named(c)]
+                for c in map(file_stem, stale):
                     for f in [*suite_dir.glob(f"jobs/*-{c}.npz"), *suite_dir.glob(f"rollouts/*-{c}.mcap"),
                               *suite_dir.glob(f"videos/*-{c}.mp4")]:
                         f.unlink()
@@ -370,10 +402,10 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
                                "sampler", "sampling_steps", "fixed_noise", "frame")}
-    sampling = {c: CONTROLLERS[c].settings(cfg.sampling) for c in cfg.controllers}
+    sampling = {c: controller_info(c).settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
-            d = np.load(suite_dir / "jobs" / f"{e.key}-{c}.npz")
+            d = np.load(job_path(suite_dir, e, c))
             cost = d["cost"]
             t = len(cost)
             for k, v in (("suite", [e.suite] * t), ("group", [e.group] * t), ("env", np.full(t, e.index)),

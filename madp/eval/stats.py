@@ -8,7 +8,9 @@ Tables are :class:`pyarrow.Table` s or mappings of column name to array.
 
 Ordering (deterministic, independent of the row order of the tables):
 
-* controllers: the registry's order (:data:`madp.controllers.NAMES`), then any other name alphabetically;
+* controllers: the registry's order (:data:`madp.controllers.NAMES`), each followed by its named
+  controllers (``madp``, ``madp:r4``, ``madp:r5``, ``madp_central``) in name order, then any other
+  name alphabetically;
 * groups: *natural* sort of the group names (digit runs compare as numbers, text case-insensitively),
   so ``sigma_5-10 < sigma_10-20 < sigma_20-30``, ``N16_F32 < N16_F128 < N32_F16`` and cities are
   alphabetical.
@@ -25,9 +27,9 @@ import numpy as np
 import pyarrow as pa
 from scipy import stats
 
-from madp.controllers import BASELINES, NAMES, SAMPLING
+from madp.controllers import BASELINES, NAMES, ORACLES, SAMPLING, split_name
 
-__all__ = ["CONFIDENCE", "column", "cost_curve_bands", "grouped_stats", "has_column", "n_range", "natural_key", "order_controllers",
+__all__ = ["CONFIDENCE", "best_per_group", "column", "cost_curve_bands", "grouped_stats", "has_column", "n_range", "natural_key", "order_controllers",
            "order_groups", "sampling_used", "scale_improvement_matrix", "select_suite", "summarize"]
 
 #: Two-sided confidence level of every interval (Student t).
@@ -37,11 +39,16 @@ _META_COLUMNS = ("num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "
 
 
 def order_controllers(names: Iterable[str]) -> list[str]:
-    """Distinct controller names in canonical order (the registry's, :data:`madp.controllers.NAMES`),
-    then any other name alphabetically."""
-    uniq = set(names)
-    known = [c for c in NAMES if c in uniq]
-    return known + sorted(uniq - set(NAMES))
+    """Distinct controller names in canonical order (the registry's, :data:`madp.controllers.NAMES`,
+    each followed by its named controllers ``madp:NAME`` in name order), then any other name
+    alphabetically."""
+    def key(name: str) -> tuple:
+        base, label = split_name(name)
+        if base not in NAMES:
+            return (len(NAMES), name, "")
+        return (NAMES.index(base), "" if label is None else "~", label or "")
+
+    return sorted(set(names), key=key)
 
 
 def natural_key(name: str) -> tuple:
@@ -166,7 +173,8 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
         ``{"suite", "confidence", "controllers", "groups", "group_order", "groups_meta",
         "by_group": {group: {controller: stats}}, "overall": {controller: stats}}`` and, for the
         ``scale`` suite, ``"scale_improvement": {baseline: matrix dict}`` (see
-        :func:`scale_improvement_matrix`). ``stats`` holds ``n`` (environments), ``mean``, ``se``,
+        :func:`scale_improvement_matrix`) and, for the ``cities`` suite, ``"best"`` (each city's best
+        deployable controller and the counts, :func:`best_per_group`). ``stats`` holds ``n`` (environments), ``mean``, ``se``,
         ``ci_lo``, ``ci_hi``, ``median``, ``std`` of ``final_cost`` and ``mean_step_ms`` (mean over
         the environments). ``overall`` pools every (group, env) of the suite. Controllers are in
         :func:`order_controllers` order, groups in :func:`order_groups` (natural) order; a
@@ -225,6 +233,8 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
         "by_group": by_group,
         "overall": overall,
     }
+    if suite == "cities":
+        summary["best"] = best_per_group(summary)
     # MADP in the scale matrices: the decentralized policy when it ran, else the centralized-masked one.
     method = next((c for c in controllers if c in SAMPLING), None)
     if suite == "scale" and method is not None and \
@@ -240,9 +250,37 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
     return summary
 
 
+def best_per_group(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """Which controller ends each group (a city of ``cities``) at the lowest mean final cost, and in how
+    many groups each controller is best (the paper: "MADP achieves the lowest cost in 32 out of 50 cities").
+
+    Only deployable controllers compete: the oracles (:data:`madp.controllers.ORACLES`, the clairvoyant
+    expert, which sees the whole map) are left out. A tie makes every tied controller best of that group.
+
+    Returns ``{"best": {group: [controllers]}, "counts": {controller: k}, "groups": n, "excluded":
+    [oracles present]}``: ``counts`` holds every competing controller of the summary (0 where never best),
+    in the summary's order; ``n`` counts the groups where at least one competed.
+    """
+    competing = [c for c in summary["controllers"] if split_name(c)[0] not in ORACLES]
+    best: dict[str, list[str]] = {}
+    for g in summary["groups"]:
+        means = {c: st["mean"] for c, st in summary["by_group"].get(g, {}).items()
+                 if c in competing and finite(st.get("mean"))}
+        if means:
+            low = min(means.values())
+            best[g] = [c for c in competing if means.get(c) == low]
+    counts = {c: sum(c in b for b in best.values()) for c in competing}
+    excluded = [c for c in summary["controllers"] if c not in competing]
+    return {"best": best, "counts": counts, "groups": len(best), "excluded": excluded}
+
+
 def cost_curve_bands(controller: np.ndarray, env_key: np.ndarray, step: np.ndarray, cost: np.ndarray,
                      confidence: float = CONFIDENCE) -> dict[str, dict[str, np.ndarray]]:
-    """Mean normalised cost per step and its per-step t interval across environments.
+    """Mean normalised cost per step and its per-step band across environments, as the paper draws it
+    (Fig. 3): mean ± z·SE, SE the standard error over the environments at that step and z the normal
+    quantile of ``confidence`` (1.96 at 95 %). The tables' intervals are Student-t; the band is the
+    normal one, which at the paper's 50 environments is nearly the same (t = 2.01) and at a handful
+    does not swell to fill the plot (t = 12.7 at two).
 
     The rows are scattered into a ``controller x env x step`` cube (nan where absent), so every
     statistic is a reduction over the env axis.
@@ -256,9 +294,9 @@ def cost_curve_bands(controller: np.ndarray, env_key: np.ndarray, step: np.ndarr
         confidence: two-sided level of the band.
 
     Returns:
-        ``{controller: {"step", "mean", "lo", "hi", "n"}}`` in canonical controller order; ``step``
+        ``{controller: {"step", "mean", "se", "lo", "hi", "n"}}`` in canonical controller order; ``step``
         holds the steps at which the controller has at least one environment. With one environment
-        at a step, ``lo = hi = mean``.
+        at a step, ``lo = hi = mean`` (``se`` nan).
     """
     controller = np.asarray(controller).astype(str)
     if controller.size == 0:
@@ -274,12 +312,12 @@ def cost_curve_bands(controller: np.ndarray, env_key: np.ndarray, step: np.ndarr
         mean = np.where(valid, cube, 0.0).sum(axis=1) / n
         dev = np.where(valid, cube - mean[:, None, :], 0.0)
         se = np.sqrt((dev ** 2).sum(axis=1) / (n - 1)) / np.sqrt(n)
-    half = np.where(n > 1, _t_quantile(n, confidence) * se, 0.0)
+    half = np.where(n > 1, stats.norm.ppf(0.5 + confidence / 2.0) * se, 0.0)
     out: dict[str, dict[str, np.ndarray]] = {}
     for name in order_controllers(c_names.tolist()):
         j = int(np.searchsorted(c_names, name))
         keep = n[j] > 0
-        out[name] = {"step": steps[keep], "mean": mean[j, keep], "lo": (mean[j] - half[j])[keep],
+        out[name] = {"step": steps[keep], "mean": mean[j, keep], "se": se[j, keep], "lo": (mean[j] - half[j])[keep],
                      "hi": (mean[j] + half[j])[keep], "n": n[j, keep]}
     return out
 

@@ -13,7 +13,7 @@ from madp.controllers import display_name
 from .paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
 from .stats import CONFIDENCE, finite, n_range
 
-__all__ = ["ALL_ROW", "SAMPLER_NAMES", "markdown_table", "sampling_markdown"]
+__all__ = ["ALL_ROW", "SAMPLER_NAMES", "best_markdown", "markdown_table", "sampling_markdown"]
 
 #: Row label of the whole-suite row of the Markdown tables (and key of ``summary["overall"]``).
 ALL_ROW = "all"
@@ -45,8 +45,11 @@ def markdown_table(summary: Mapping[str, Any], suite: str | None = None) -> str:
        range when controllers differ), one column per controller with ``mean ± SE [lo, hi]`` (95 %
        t interval; ``mean (n=1)`` for a single environment, ``—`` when absent) and, for suites in
        :data:`PAPER_RESULTS`, a column ``paper DCVT / LPAC-K3 / MADP``.
-    2. Mean wall time per control step (ms): same rows and controller columns.
-    3. ``scale`` suite only: per baseline, the N × F matrix of relative improvement of MADP.
+    2. ``cities`` suite only (``summary["best"]``, :func:`madp.eval.stats.best_per_group`): per
+       controller, in how many cities it ends at the lowest mean cost, "best in k of n cities"; the
+       clairvoyant expert (an oracle) is not counted, and the caption says so.
+    3. Mean wall time per control step (ms): same rows and controller columns.
+    4. ``scale`` suite only: per baseline, the N × F matrix of relative improvement of MADP.
     """
     suite = suite or summary["suite"]
     controllers: list[str] = list(summary["controllers"])
@@ -71,6 +74,9 @@ def markdown_table(summary: Mapping[str, Any], suite: str | None = None) -> str:
                          if paper else "—")
         lines.append(_md_row(cells))
 
+    if summary.get("best"):
+        lines += ["", best_markdown(summary["best"])]
+
     lines += ["", f"Mean wall time per control step (ms), suite `{suite}`:", ""]
     header = ["group"] + [display_name(c) for c in controllers]
     lines += [_md_row(header), _md_row(["---"] * len(header))]
@@ -88,6 +94,19 @@ def markdown_table(summary: Mapping[str, Any], suite: str | None = None) -> str:
         for i, nr in enumerate(m["num_robots"]):
             lines.append(_md_row([str(nr)] + [f"{v:+.1%}" if math.isfinite(v) else "—" for v in imp[i]]))
     return "\n".join(lines) + "\n"
+
+
+def best_markdown(best: Mapping[str, Any], what: str = "cities") -> str:
+    """The table of :func:`madp.eval.stats.best_per_group`: per controller, "best in k of n cities"."""
+    n = best["groups"]
+    lines = [f"Best controller per city: the lowest mean final cost of the city; ties count for each tied "
+             f"controller."]
+    if best["excluded"]:
+        lines[0] += (f" {' and '.join(display_name(c) for c in best['excluded'])} (an oracle: it sees the whole "
+                     f"map, no deployed swarm does) is shown in the tables but not counted.")
+    lines += ["", _md_row(["controller", "best in"]), _md_row(["---", "---"])]
+    lines += [_md_row([display_name(c), f"{k} of {n} {what}"]) for c, k in best["counts"].items()]
+    return "\n".join(lines)
 
 
 def sampling_markdown(sampling: Mapping[str, Mapping[str, Any]]) -> str:

@@ -229,7 +229,7 @@ def test_cost_curve_bands_match_numpy():
         cube = np.full((4, 7), np.nan)
         cube[col["env"][m], col["step"][m]] = col["cost"][m]
         mean = cube.mean(axis=0)
-        half = stats.t.ppf(0.975, 3) * cube.std(axis=0, ddof=1) / 2.0
+        half = stats.norm.ppf(0.975) * cube.std(axis=0, ddof=1) / 2.0  # the paper's band: mean ± 1.96·SE
         np.testing.assert_array_equal(b["step"], np.arange(7))
         np.testing.assert_allclose(b["mean"], mean, rtol=1e-12)
         np.testing.assert_allclose(b["lo"], mean - half, rtol=1e-12, atol=1e-15)
