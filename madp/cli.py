@@ -29,6 +29,9 @@ dataset_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Ins
 scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Scenario files.")
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
+# MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
+SELECT = typer.Option("none", help="MADP: keep one of --candidates K samples per robot: none | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)).")
+CANDIDATES = typer.Option(1, help="MADP: samples per robot per control step, drawn in one batch (K > 1 needs --select).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
 @app.command()
@@ -41,9 +44,12 @@ def rollout(
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
     video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
     device: str = typer.Option("cpu", help="Where a learned controller's model runs: cpu | cuda | cuda:I | auto (cuda when there is one)."),
+    select: str = SELECT,
+    candidates: int = CANDIDATES,
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import controller_info, make_controller
+    from madp.policies import SamplingSettings
     from madp.policies.device import resolve_device
     from madp.sim import CoverageEnv, Scenario, rollout as run
     from madp.video import Frames, check_video_path
@@ -52,10 +58,11 @@ def rollout(
     if checkpoint is not None and not learned:
         raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
     device = resolve_device(device)  # checked, like the video path, before anything is read or run
+    sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
     frames = [Frames(check_video_path(video), steps)] if video is not None else []
     sc = Scenario.load(scenario)
     ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0,
-                           device=device)
+                           sampling=sampling, device=device)
     result = run(CoverageEnv(sc), ctrl, steps, frames)
     write_json_atomic(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
@@ -206,6 +213,8 @@ def eval_cmd(
     eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),
     frame: str = typer.Option("world", help="MADP: world (the world's axes) | d4 (a random rotation/reflection of the world per step, shared by the swarm)."),
+    select: str = SELECT,
+    candidates: int = CANDIDATES,
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     video: int = typer.Option(0, min=0, help="Write MP4 videos of K environments per controller, spread over the suite's groups (each group's first, then each group's second, ...; cities: the first K cities) to OUT/<suite>/videos/."),
@@ -228,7 +237,7 @@ def eval_cmd(
     requested, named = parse_controllers(controllers) if controllers else (DEFAULT, {})
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
-    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame)
+    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame, select, candidates)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),

@@ -98,13 +98,14 @@ def bench_infer_cmd(
     device: str = typer.Option("cpu", help="Where MADP runs, in the sweep and the latency: cpu | cuda | cuda:I | auto (cuda when there is one)."),
     presets: str = typer.Option("cpu,paper", help="Comma-separated presets whose latency is measured."),
     sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="--no-sweep: no closed-loop sweep; the latency of every --grid setting instead."),
+    candidates: Optional[str] = typer.Option(None, help="Also the latency of a whole decentralized control step with K samples per robot and each --select rule of madp eval, for these K (e.g. 1,4,16)."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
-    from madp.eval.bench import bench_infer_all, format_table, parse_grid, parse_presets
+    from madp.eval.bench import bench_infer_all, format_table, parse_candidates, parse_grid, parse_presets
     from madp.policies.device import resolve_device
 
     r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
                         repeats=repeats, workers=workers, presets=parse_presets(presets), device=resolve_device(device),
-                        sweep=sweep)
+                        sweep=sweep, candidates=parse_candidates(candidates) if candidates else ())
     _show(format_table(r), r, out)

@@ -14,6 +14,9 @@
    the same run) and each sampler at its S\\*; medians of ``repeats`` calls.
 4. The **best** setting: the (sampler, S\\*) of lowest cpu-preset decentralized latency.
 5. ``cost_vs_steps.png``: mean cost ± SE against S per sampler, with DDIM-50's band.
+6. With ``candidates`` (``--candidates 1,4,16``): the latency of one whole decentralized MADP control
+   step (cpu preset, the default sampler) with K samples per robot and each rule that chooses among
+   them (:mod:`madp.policies.select`): :func:`bench_select`.
 
 The paper reports 0.36 s per control step (N = 32) on an RTX 3090.
 """
@@ -27,7 +30,7 @@ import numpy as np
 
 from madp.controllers import SAMPLING
 from madp.errors import SettingError
-from madp.models.bench import bench_infer
+from madp.models.bench import _threads, _timed, bench_infer
 
 from madp.policies import load, shipped_checkpoint
 
@@ -69,6 +72,49 @@ def parse_grid(text: str) -> dict[str, tuple[int, ...]]:
     grid.setdefault(BASELINE[0], ())
     grid[BASELINE[0]] = tuple(sorted(set(grid[BASELINE[0]]) | {BASELINE[1]}))
     return grid
+
+
+def parse_candidates(text: str) -> tuple[int, ...]:
+    """``"1,4,16"`` -> ``(1, 4, 16)``: the K whose selection latency is measured (each >= 1)."""
+    try:
+        ks = tuple(sorted({int(v) for v in text.split(",") if v.strip()}))
+    except ValueError:
+        raise SettingError("candidates", f"expected comma-separated whole numbers, got {text!r}") from None
+    if not ks or ks[0] < 1:
+        raise SettingError("candidates", f"expected comma-separated whole numbers >= 1, got {text!r}")
+    return ks
+
+
+def bench_select(candidates: tuple[int, ...] = (1, 4, 16), checkpoint: str | None = None, repeats: int = 5,
+                 threads: int | None = 2, device: str = "cpu", num_robots: int = 32, seed: int = 0) -> list[dict]:
+    """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
+    (a random uniform-launch scenario) with K candidates per robot, for every K of ``candidates``
+    and every rule of :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1): the
+    policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
+    the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
+    untrained ``cpu`` preset; the default sampler."""
+    import torch
+
+    from madp.models import MADP, madp_config
+    from madp.policies import MADPPolicy, SamplingSettings, noise_generator
+    from madp.policies.select import SELECTS
+    from madp.sim import CoverageEnv, Scenario, SimParams
+
+    path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
+    torch.manual_seed(seed)
+    model = load(path, "madp", device)[0] if path else MADP(madp_config("cpu")).to(device)
+    env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
+    rows = []
+    with _threads(threads):
+        for k in candidates:
+            for select in SELECTS[:1] if k == 1 else SELECTS[1:]:
+                policy = MADPPolicy(model, "decentralized", SamplingSettings(select=select, candidates=k), device=device)
+                gen = noise_generator(seed)
+                times = _timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
+                rows.append({"candidates": k, "select": select, "num_robots": num_robots, "sampler": policy.sampler,
+                             "num_steps": policy.num_steps, "threads": torch.get_num_threads(), "device": device,
+                             "checkpoint": path, "latency_s": float(np.median(times)), "latency_min_s": min(times)})
+    return rows
 
 
 def _final_costs(suite_dir: Path, controller: str) -> tuple[np.ndarray, float]:
@@ -154,11 +200,12 @@ def plot_cost_vs_steps(sweep: dict, path: Path) -> Path:
 def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs/bench-infer",
                     grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
                     repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
-                    progress: bool = True, device: str = "cpu", sweep: bool = True) -> dict:
+                    progress: bool = True, device: str = "cpu", sweep: bool = True,
+                    candidates: tuple[int, ...] = ()) -> dict:
     """The whole ``madp bench infer`` (module docstring) on ``device`` (the sweep's rollouts and the
     latency). Without a checkpoint (none given and none shipped) the sweep is skipped and latency is
     reported for DDIM-50 only; with ``sweep=False`` the sweep is skipped and latency is reported for
-    every setting of ``grid`` (DDIM-50 included)."""
+    every setting of ``grid`` (DDIM-50 included). ``candidates``: also :func:`bench_select` at those K."""
     grid = grid or dict(DEFAULT_GRID)
     out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None, "device": device, "swept": sweep}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
@@ -181,6 +228,8 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
                 base = base or r["latency_s"]
                 lat.append({**r, "sampler": smp, "speedup_vs_ddim50": base / r["latency_s"]})
     out["latency"] = lat
+    if candidates:
+        out["selection"] = bench_select(candidates, checkpoint, repeats, threads, device)
     if out["sweep"] and any(x["preset"] == "cpu" and x["mode"] == "decentralized" for x in lat):
         cands = [x for x in lat if x["preset"] == "cpu" and x["mode"] == "decentralized"]
         best = min(cands, key=lambda x: x["latency_s"])
@@ -218,4 +267,11 @@ def format_table(r: dict) -> list[str]:
     for x in r["latency"]:
         lines.append(f"{x['preset']:<7}{x['mode']:<15}{x['sampler']:<8}{x['num_steps']:>4}{1e3 * x['latency_s']:>12.1f}"
                      f"{x['speedup_vs_ddim50']:>11.1f}x")
+    for i, x in enumerate(r.get("selection") or []):
+        if i == 0:
+            model = "untrained cpu preset" if x["checkpoint"] is None else x["checkpoint"]
+            lines.append(f"{'K':>4}  {'select':<8}{'latency ms':>12}   (one decentralized MADP control step, observations "
+                         f"and choice included: {x['sampler']} S = {x['num_steps']}, N = {x['num_robots']}, "
+                         f"{x['threads']} threads, {model})")
+        lines.append(f"{x['candidates']:>4}  {x['select']:<8}{1e3 * x['latency_s']:>12.1f}")
     return lines

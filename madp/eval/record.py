@@ -343,8 +343,9 @@ def write_rollout_mcap(
         sample_horizon_steps: steps each sampled velocity is held for its drawn path.
         every: record every ``every``-th step (and always the last, T).
         title: free text stored in the metadata (e.g. scenario and seed).
-        extra_metadata: more ``{key: value}`` for the metadata record (MADP: ``sampler``,
-            ``sampling_steps``, ``eta``).
+        extra_metadata: more ``{key: value}`` for the metadata record (MADP: its
+            :class:`madp.policies.SamplingSettings`, ``sampler``, ``sampling_steps``, ``eta``, …,
+            ``select``, ``candidates``).
 
     Returns:
         ``{"path": str, "bytes": file size, "messages": total messages, "topics": {topic: count}}``.

@@ -45,7 +45,8 @@ from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, a
 from .suites import EnvSpec, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
-SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "video": 0, "device": "cpu"}
+SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
+                    "device": "cpu"}
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,8 @@ class EvalConfig:
     eta: float = 0.0
     fixed_noise: bool = False
     frame: str = "world"
+    select: str = "none"  # MADP: choosing among `candidates` samples per robot (madp.policies.select)
+    candidates: int = 1
     workers: int = 0
     ray: str | None = None  # run the jobs on Ray ("local", "auto" or an address: madp.io.ray_backend)
     record: int = 0
@@ -81,7 +84,8 @@ class EvalConfig:
         """MADP's :class:`madp.policies.SamplingSettings` of this evaluation."""
         from madp.policies import SamplingSettings
 
-        return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise, self.frame)
+        return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise, self.frame, self.select,
+                                self.candidates)
 
     def checkpoint(self, controller: str) -> str | None:
         """The checkpoint this evaluation gives ``controller``: a named one's own (``madp:r4``), else its
@@ -324,7 +328,8 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                       progress: bool) -> dict:
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
                 "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
-                "frame": cfg.frame, "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
+                "frame": cfg.frame, "select": cfg.select, "candidates": cfg.candidates, "record": cfg.record,
+                "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs], "device": cfg.device}
     # The checkpoints this run uses: per kind (the plain controllers') and per named controller.
     plain_kinds = {controller_info(c).kind for c in cfg.controllers if not is_named(c)}
@@ -401,7 +406,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     curves = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "step", "cost")}
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
-                               "sampler", "sampling_steps", "fixed_noise", "frame")}
+                               "sampler", "sampling_steps", "fixed_noise", "frame", "select", "candidates")}
     sampling = {c: controller_info(c).settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
@@ -418,11 +423,12 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        sigma_lo=e.params.sigma_range_m[0], sigma_hi=e.params.sigma_range_m[1],
                        city=e.group if e.city_file else "", launch=e.launch,
                        sampler=sampling[c].get("sampler", ""), sampling_steps=sampling[c].get("sampling_steps", 0),
-                       fixed_noise=sampling[c].get("fixed_noise", False), frame=sampling[c].get("frame", ""))
+                       fixed_noise=sampling[c].get("fixed_noise", False), frame=sampling[c].get("frame", ""),
+                       select=sampling[c].get("select", ""), candidates=sampling[c].get("candidates", 0))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),
-             "sampling_steps": pa.int32(),
+             "sampling_steps": pa.int32(), "candidates": pa.int32(),
              "num_features": pa.int32(), "scenario_seed": pa.int64()}
     ctab = pa.table({k: pa.array(np.concatenate([np.asarray(x) for x in v]), type=types.get(k)) for k, v in curves.items()})
     rtab = pa.table({k: pa.array(v, type=types.get(k)) for k, v in results.items()})

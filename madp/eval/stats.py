@@ -363,7 +363,8 @@ def scale_improvement_matrix(results_table: pa.Table | Mapping[str, Any], baseli
 
 def sampling_used(results: pa.Table | Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     """``{controller: {"sampler", "sampling_steps"}}`` for the controllers that sample (MADP), from
-    the ``sampler`` / ``sampling_steps`` columns of ``results.parquet`` (absent in older tables: {})."""
+    the ``sampler`` / ``sampling_steps`` columns of ``results.parquet`` (absent in older tables: {});
+    with ``fixed_noise``, ``frame`` (d4) and ``select`` / ``candidates`` where those were not the defaults."""
     if not (has_column(results, "sampler") and has_column(results, "sampling_steps")):
         return {}
     ctrl, smp, steps = column(results, "controller"), column(results, "sampler"), column(results, "sampling_steps")
@@ -378,6 +379,9 @@ def sampling_used(results: pa.Table | Mapping[str, Any]) -> dict[str, dict[str, 
             out[c]["fixed_noise"] = True
         if has_column(results, "frame") and (column(results, "frame")[sel].astype(str) == "d4").any():
             out[c]["frame"] = "d4"
+        picked = column(results, "select")[sel].astype(str) if has_column(results, "select") else np.array([], str)
+        if (chosen := np.flatnonzero((picked != "none") & (picked != ""))).size:
+            out[c].update(select=str(picked[chosen[0]]), candidates=int(column(results, "candidates")[sel][chosen[0]]))
     return out
 
 

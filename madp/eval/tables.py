@@ -20,6 +20,11 @@ ALL_ROW = "all"
 
 #: Sampler names in prose.
 SAMPLER_NAMES = {"ddim": "DDIM", "dpm++": "DPM-Solver++(2M)"}
+#: How each selection rule among K samples per robot (:mod:`madp.policies.select`) reads in prose.
+SELECT_NAMES = {"oracle": "the best of {k} joint samples by the true J after the step (ORACLE: an upper bound, not a "
+                          "controller robots could run)",
+                "cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map",
+                "mppi": "each robot the MPPI mean of its {k} samples weighted by its own cell's cost"}
 
 
 def _cell(st: Mapping[str, Any] | None) -> str:
@@ -115,4 +120,5 @@ def sampling_markdown(sampling: Mapping[str, Mapping[str, Any]]) -> str:
         f"{display_name(c)}: {SAMPLER_NAMES.get(v['sampler'], v['sampler'])}, S = {v['sampling_steps']}"
         + (", initial noise fixed per episode" if v.get("fixed_noise") else "")
         + (", in a random rotation/reflection of the world per step" if v.get("frame") == "d4" else "")
+        + (f", {SELECT_NAMES[v['select']].format(k=v['candidates'])}" if v.get("select") in SELECT_NAMES else "")
         for c, v in sampling.items()) + "."

@@ -18,6 +18,7 @@ from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 from madp.models.symmetry import D4_SIZE, inverse_actions, transform_state
 
+from .select import check_selection, select_actions
 from .swarm import clip_speed, swarm_tensors
 
 if TYPE_CHECKING:
@@ -56,6 +57,11 @@ class SamplingSettings:
       actions are moved back. The policy's action distribution is then exactly equivariant to the
       world's symmetries, and a direction the model prefers in its own axes changes every step.
 
+    ``candidates`` K and ``select``: every robot draws K candidate actions in the same batched call
+    and keeps one by rule ``select`` (:mod:`madp.policies.select`): ``none`` (K = 1, the default),
+    ``oracle`` (the joint sample of lowest true J after the step: an upper bound that reads the whole
+    world, not a controller robots could run), ``cell`` or ``mppi`` (each robot on what it knows).
+
     Checked on construction; the defaults are the measured best."""
 
     sampler: str = DEFAULT_SAMPLER
@@ -63,17 +69,22 @@ class SamplingSettings:
     eta: float = 0.0
     fixed_noise: bool = False
     frame: str = "world"
+    select: str = "none"
+    candidates: int = 1
 
     def __post_init__(self) -> None:
         check_sampler(self.sampler, self.sampling_steps, self.eta)
         if self.frame not in FRAMES:
             raise SettingError("frame", f"expected one of {', '.join(FRAMES)}, got {self.frame!r}")
+        check_selection(self.select, self.candidates)
 
     @classmethod
     def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
-           fixed_noise: bool = False, frame: str = "world") -> "SamplingSettings":
+           fixed_noise: bool = False, frame: str = "world", select: str = "none", candidates: int = 1
+           ) -> "SamplingSettings":
         """The settings with ``None`` standing for the default sampler and S."""
-        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame)
+        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,
+                   select, candidates)
 
     def as_dict(self) -> dict:
         """What names the sampling in tables, recordings and a suite's config."""
@@ -86,7 +97,11 @@ class MADPPolicy:
 
     ``sampling.fixed_noise``: each robot draws its initial noise ``U_K`` once per episode and reuses it
     at every control step (with a deterministic sampler the policy is then a function of the state),
-    instead of a fresh draw per step; per-step noise of DDIM with η > 0 stays fresh."""
+    instead of a fresh draw per step; per-step noise of DDIM with η > 0 stays fresh.
+
+    ``sampling.candidates`` K > 1: each sampling call runs K copies of every state in one batch, copy
+    k with the k-th ``[N, 2]`` block of one ``[K, N, 2]`` noise draw, and ``sampling.select`` keeps
+    one action per robot (:func:`select_actions`)."""
 
     def __init__(self, model, mode: str = "decentralized", sampling: SamplingSettings | None = None, seed: int = 0,
                  device: str = "cpu"):
@@ -98,6 +113,7 @@ class MADPPolicy:
                                f"diffusion steps K), got {sampling.sampling_steps}")
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
         self.sampler, self.fixed_noise, self.frame = sampling.sampler, bool(sampling.fixed_noise), sampling.frame
+        self.select, self.candidates = sampling.select, int(sampling.candidates)
         self._fixed: dict[int, torch.Tensor] = {}
         self.stochastic = self.sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
         self.device = torch.device(device)
@@ -140,20 +156,30 @@ class MADPPolicy:
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
-        """``num_samples`` independent swarm actions [M, N, 2] (m/s) for the current state.
+        """``num_samples`` independent swarm actions [M, N, 2] (m/s) for the current state (each the
+        one ``sampling.select`` keeps among its own K candidates).
 
         ``generator`` (a CPU generator; default: the policy's own) lets a caller draw extra samples,
         e.g. for visualisation, without changing the noise the rollout itself uses."""
         own = generator is None
         generator = generator or self.generator
+        copies = num_samples * self.candidates
         obs = torch.from_numpy(env.observations()).to(self.device)
         pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
-        obs = obs[None].expand(num_samples, *obs.shape)
-        pos = pos[None].expand(num_samples, *pos.shape)
-        shape = (num_samples, env.num_robots, self.model.config.action_dim)
+        obs = obs[None].expand(copies, *obs.shape)
+        pos = pos[None].expand(copies, *pos.shape)
+        shape = (copies, env.num_robots, self.model.config.action_dim)
         noise, steps = self._noise(generator, shape, own and self.fixed_noise and num_samples == 1)
         u = self._sample(obs, pos, noise, steps, [env]).numpy()
-        return np.stack([clip_speed(x, env.params.max_speed_mps) for x in u])
+        return self._choose(np.stack([clip_speed(x, env.params.max_speed_mps) for x in u]), [env] * num_samples)
+
+    def _choose(self, u: np.ndarray, envs: list[CoverageEnv]) -> np.ndarray:
+        """``u [B·K, N, 2]`` (copy k of state b in row b·K + k) -> the kept actions ``[B, N, 2]``."""
+        k = self.candidates
+        if k == 1:
+            return u
+        u = u.reshape(len(envs), k, *u.shape[1:])
+        return np.stack([select_actions(self.select, e, c) for e, c in zip(envs, u)])
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         return self.sample(env, 1)[0]
@@ -164,11 +190,16 @@ class MADPPolicy:
 
         Environment b's noise comes from ``generators[b]`` (CPU generators) in the order a lone
         :meth:`sample` would draw it (U_K, then one draw per step when the sampler is stochastic:
-        DDIM with η > 0), so batching changes only float rounding."""
+        DDIM with η > 0), so batching changes only float rounding. With K candidates the K copies of
+        environment b are rows b·K .. b·K + K − 1 of the batch."""
         obs, pos = swarm_tensors(envs, self.device)
-        shape = (1, pos.shape[1], self.model.config.action_dim)
+        k = self.candidates
+        copies = [e for e in envs for _ in range(k)]
+        if k > 1:
+            obs, pos = obs.repeat_interleave(k, 0), pos.repeat_interleave(k, 0)
+        shape = (k, pos.shape[1], self.model.config.action_dim)
         noise = [self._noise(g, shape, self.fixed_noise) for g in generators]
         first = torch.cat([n[0] for n in noise])
         steps = torch.cat([n[1] for n in noise], dim=1) if self.stochastic else None
-        u = self._sample(obs, pos, first, steps, envs).numpy()
-        return np.stack([clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, envs)])
+        u = self._sample(obs, pos, first, steps, copies).numpy()
+        return self._choose(np.stack([clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, copies)]), envs)

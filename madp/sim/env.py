@@ -25,6 +25,27 @@ BORDER_EPS_M = 1e-4
 SPEED_EPS = 1e-10
 
 
+def move(start_m: np.ndarray, offset_m: np.ndarray, actions_mps: np.ndarray, params: SimParams
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """The motion of one control step, the rule :meth:`CoverageEnv.step` executes, as a pure function:
+    robots at ``start_m + offset_m`` driven by ``actions_mps`` (m/s), all ``[..., 2]`` and broadcast
+    against each other. The speed is clipped to u_max, a robot slower than 1e-10 m/s stays, the
+    start-relative offset is integrated over Δt (the library's order of operations) and positions at
+    or beyond the border are put back 1e-4 m inside it. Returns ``(positions, offsets)`` ``[..., 2]``."""
+    u = np.asarray(actions_mps, dtype=np.float64)
+    speed = np.linalg.norm(u, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        direction = np.where(speed[..., None] > 0, u / speed[..., None], 0.0)
+    speed = np.minimum(speed, params.max_speed_mps)
+    moving = speed > SPEED_EPS
+    new_offset = np.where(moving[..., None], offset_m + direction * (speed * params.dt_s)[..., None], offset_m)
+    pos = new_offset + start_m
+    w = float(params.world_size)
+    pos = np.where(pos <= 0.0, BORDER_EPS_M, pos)
+    pos = np.where(pos >= w, w - BORDER_EPS_M, pos)
+    return pos, pos - start_m
+
+
 class CoverageEnv:
     """One episode of decentralized coverage for N robots over a fixed importance map."""
 
@@ -62,23 +83,12 @@ class CoverageEnv:
 
     def step(self, actions_mps: np.ndarray) -> np.ndarray:
         """Move every robot by Δt · u (speed clipped to u_max), clamp, sense; return positions [N, 2]."""
-        p = self.params
         u = np.asarray(actions_mps, dtype=np.float64)
         if u.shape != self.positions_m.shape:
             raise ValueError(f"actions must have shape {self.positions_m.shape}, got {u.shape}")
         if not np.isfinite(u).all():
             raise ValueError("actions contain NaN or infinity")
-        speed = np.linalg.norm(u, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            direction = np.where(speed[:, None] > 0, u / speed[:, None], 0.0)
-        speed = np.minimum(speed, p.max_speed_mps)
-        moving = speed > SPEED_EPS
-        new_offset = np.where(moving[:, None], self.offset_m + direction * (speed * p.dt_s)[:, None], self.offset_m)
-        pos = new_offset + self.start_m
-        w = float(p.world_size)
-        pos = np.where(pos <= 0.0, BORDER_EPS_M, pos)
-        pos = np.where(pos >= w, w - BORDER_EPS_M, pos)
-        self.offset_m = pos - self.start_m
+        pos, self.offset_m = move(self.start_m, self.offset_m, u, self.params)
         self.positions_m = pos
         self.maps.sense(robot_cells(pos))
         self._record_history()

@@ -81,3 +81,20 @@ def test_eval_on_a_cuda_device_this_machine_lacks_is_one_line(tmp_path):
     if torch.cuda.is_available():
         pytest.skip("this machine has a CUDA GPU")
     assert_one_line(*cli("eval", "--device", "cuda", "--out", tmp_path), "--device cuda", "no CUDA GPU")
+
+
+def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
+    """``--candidates 1,2``: K = 1 without selection, then every rule at K = 2 (structure, not speed)."""
+    from madp.eval.bench import bench_select, parse_candidates
+
+    assert parse_candidates("16,1,4") == (1, 4, 16)
+    for bad in ("0,4", "a", ""):
+        with pytest.raises(SettingError, match="^candidates: "):
+            parse_candidates(bad)
+    assert_one_line(*cli("bench", "infer", "--no-sweep", "--candidates", "1,x", "--presets", "cpu"), "--candidates")
+    rows = bench_select((1, 2), repeats=1, threads=1, num_robots=8)
+    assert [(r["candidates"], r["select"]) for r in rows] == [(1, "none"), (2, "oracle"), (2, "cell"), (2, "mppi")]
+    assert all(r["latency_s"] > 0 and r["num_robots"] == 8 for r in rows)
+    lines = format_table({"sweep": None, "swept": False, "paper_latency_s": 0.36, "device": "cpu", "latency": [],
+                          "selection": rows})
+    assert sum(x.strip().startswith("2  ") for x in lines) == 3 and any("K" in x and "select" in x for x in lines)

@@ -1,0 +1,149 @@
+"""Choosing among MADP's samples (issue 26): every robot draws K candidate actions in one batched
+sampling call (K copies of the swarm's state, copy k with its own noise), and one action is kept.
+
+Candidate k of robot i is robot i's action in copy k; copy k as a whole is a joint sample (a swarm
+action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K)``):
+
+* ``none``: K = 1, MADP's sampling as it always was.
+* ``oracle`` — **an upper bound, not a controller robots could run**: it keeps the joint sample whose
+  true coverage cost J after the step (the world map, all robots; :func:`oracle_costs`) is lowest.
+  It needs the environment itself.
+* ``cell``: each robot, alone, keeps the candidate whose *local cell cost* (:func:`local_cell_costs`)
+  is lowest: the cost of its own Voronoi cell after the candidate move, among itself and its
+  neighbours within r_c at their latest positions (assumed to stay), on its own sensed map inside its
+  local window.
+* ``mppi``: each robot takes the mean of its candidates weighted by ``exp(-c_k / λ)`` with c_k the
+  same local cell cost (:func:`mppi_weights`), λ = :data:`MPPI_TEMPERATURE` × the standard deviation
+  of its K costs.
+
+The local rules read only what a robot knows: :func:`local_views` collects, per robot, its own map's
+window, its own position and its neighbours' positions; :func:`local_cell_costs` and
+:func:`mppi_weights` take nothing else, and row i of their result depends on row i of their inputs
+alone. Only :func:`oracle_costs` takes the environment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from madp.errors import SettingError
+from madp.sim.env import CoverageEnv, move
+from madp.sim.params import SimParams
+from madp.sim.voronoi import coverage_cost
+
+#: The selection rules (module docstring).
+SELECTS = ("none", "oracle", "cell", "mppi")
+#: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
+GRID_M = 4
+#: MPPI's λ in units of the standard deviation of a robot's K local costs.
+MPPI_TEMPERATURE = 1.0
+
+
+def check_selection(select: str, candidates: int) -> None:
+    """A one-line :class:`SettingError` unless ``select`` is one of :data:`SELECTS` and ``candidates``
+    K fits it: ``none`` with K = 1, any other rule with K > 1."""
+    if select not in SELECTS:
+        raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
+    if isinstance(candidates, bool) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
+        raise SettingError("candidates", f"expected a whole number of samples per robot >= 1, got {candidates!r}")
+    if select == "none" and candidates > 1:
+        raise SettingError("select/candidates", f"{candidates} candidates per robot need a rule to choose among "
+                           "them (oracle, cell or mppi), got select none")
+    if select != "none" and candidates == 1:
+        raise SettingError("select/candidates", f"select {select} chooses among several samples per robot: "
+                           "expected candidates > 1, got 1")
+
+
+def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
+    """The true J after one step of each joint sample ``actions_mps [K, N, 2]`` (m/s): ``[K]``. The
+    positions move as :meth:`CoverageEnv.step` moves them (:func:`madp.sim.env.move`); ``env`` is
+    left as it is. Reads the whole world map: an oracle, not something robots could compute."""
+    pos, _ = move(env.start_m, env.offset_m, actions_mps, env.params)
+    return np.array([coverage_cost(env.prefix, p) for p in pos])
+
+
+@dataclass(frozen=True)
+class LocalViews:
+    """What each robot knows, one row per robot (R rows):
+
+    ``start_m``, ``offset_m`` [R, 2]: its own position, as the motion rule integrates it;
+    ``weights`` [R, G, G]: its own sensed map inside its local window, summed over blocks of
+    GRID_M × GRID_M cells (float64); ``origin_m`` [R, 2]: the window's lower corner, so block (a, b)
+    has its centre at ``origin_m + GRID_M * (a, b) + GRID_M / 2``;
+    ``neighbours_m`` [R, M, 2]: the latest positions of its neighbours within r_c, padded;
+    ``valid`` [R, M]: which of them are real."""
+
+    start_m: np.ndarray
+    offset_m: np.ndarray
+    weights: np.ndarray
+    origin_m: np.ndarray
+    neighbours_m: np.ndarray
+    valid: np.ndarray
+
+
+def local_views(env: CoverageEnv) -> LocalViews:
+    """Every robot's :class:`LocalViews` row: its own map (``env.maps``, what it sensed) in its
+    256 m window (zero outside the world), its position, and its neighbours (``env.neighbours()``)."""
+    s = env.params.local_map_size
+    g = s // GRID_M
+    cells = env.cells()
+    own = env.local_maps()  # [N, S, S] float32, robot n's own map around its cell
+    weights = own.reshape(len(own), g, GRID_M, s).sum(2, dtype=np.float64).reshape(len(own), g, g, GRID_M).sum(3)
+    nbr = env.neighbours()
+    m = max(int(nbr.sum(1).max()), 1)
+    order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
+    valid = np.take_along_axis(nbr, order, 1)
+    return LocalViews(env.start_m, env.offset_m, weights, (cells - s // 2).astype(np.float64),
+                      env.positions_m[order], valid)
+
+
+def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimParams) -> np.ndarray:
+    """Each robot's local cell cost of each of its candidates ``actions_mps [R, K, 2]`` (m/s): ``[R, K]``.
+
+    Robot r moves to y = :func:`madp.sim.env.move` of its own position; its cell is the set of
+    grid points of its window closer to y than to every valid neighbour (ties: its own); the cost is
+    ``sum over the cell of weight · |q − y|²`` (SPEC's J restricted to its own cell, on its own map,
+    on a grid of GRID_M m: each block's mass at the block's centre). Uses ``views`` and the motion
+    constants of ``params`` only."""
+    y, _ = move(views.start_m[:, None], views.offset_m[:, None], actions_mps, params)  # [R, K, 2]
+    g = views.weights.shape[1]
+    q = views.origin_m[:, :, None] + GRID_M * np.arange(g) + GRID_M / 2  # [R, 2, G] block centres per axis
+    to_nbr = ((q[:, None, 0, :, None] - views.neighbours_m[..., 0, None, None]) ** 2
+              + (q[:, None, 1, None, :] - views.neighbours_m[..., 1, None, None]) ** 2)  # [R, M, G, G]
+    nearest = np.where(views.valid[..., None, None], to_nbr, np.inf).min(1)  # [R, G, G]
+    to_y = ((q[:, None, 0, :, None] - y[..., 0, None, None]) ** 2
+            + (q[:, None, 1, None, :] - y[..., 1, None, None]) ** 2)  # [R, K, G, G]
+    own = to_y <= nearest[:, None]
+    return (np.where(own, to_y, 0.0) * views.weights[:, None]).sum((2, 3))
+
+
+def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np.ndarray:
+    """Weights ``[R, K]`` (each row sums to 1) ``∝ exp(−(c_k − min c) / λ)`` with λ = ``temperature`` ×
+    the standard deviation of the row's K costs: invariant to the costs' scale and offset. A row
+    whose costs are all equal gets equal weights; ``temperature → 0`` puts all weight on the lowest
+    cost, ``temperature → ∞`` gives equal weights."""
+    c = np.asarray(costs, dtype=np.float64)
+    spread = c.std(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        z = np.where(spread > 0, (c - c.min(axis=1, keepdims=True)) / (temperature * spread), 0.0)
+    w = np.exp(-z)
+    return w / w.sum(axis=1, keepdims=True)
+
+
+def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) -> np.ndarray:
+    """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
+    (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
+    ``mppi`` only each robot's :func:`local_views`."""
+    if select == "none":
+        return candidates_mps[0]
+    if select == "oracle":
+        return candidates_mps[int(np.argmin(oracle_costs(env, candidates_mps)))]
+    per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
+    costs = local_cell_costs(local_views(env), per_robot, env.params)
+    if select == "cell":
+        return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
+    if select == "mppi":
+        return np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)
+    raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")

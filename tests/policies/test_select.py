@@ -1,0 +1,206 @@
+"""Choosing among MADP's samples (issue 26, madp/policies/select.py).
+
+The contracts: the oracle keeps the joint sample of lowest true J after the step; the local rules
+(``cell``, ``mppi``) see only a robot's own map and its neighbours within r_c; ``mppi`` spans the
+argmin (λ → 0) and the mean (λ → ∞); K = 1 with select none is MADP's sampling unchanged; bad
+settings are refused in one line.
+"""
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+import madp.policies.madp as madp_policy
+import madp.policies.select as select_mod
+from madp.errors import SettingError
+from madp.models import MADP
+from madp.policies import MADPPolicy, SamplingSettings, noise_generator
+from madp.policies.select import local_cell_costs, local_views, mppi_weights, oracle_costs, select_actions
+from madp.policies.swarm import clip_speed
+from madp.sim import CoverageEnv, Scenario, SimParams
+from tests.conftest import one_torch_thread
+from tests.models.models_testutils import tiny_madp_config
+from tests.test_reliability_errors import assert_one_line, cli
+
+K = 4
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.manual_seed(0)
+    with one_torch_thread():
+        m = MADP(tiny_madp_config())
+        m.set_action_stats(torch.zeros(2), torch.full((2,), 2.0))  # actions of a few m/s, so the candidates differ
+        yield m.eval()
+
+
+def _scenario(robots, params=None) -> Scenario:
+    """Importance around robot 0 (at 300, 300) and elsewhere; robots at ``robots``."""
+    robots = np.asarray(robots, dtype=np.float64)
+    feats = np.array([[320.0, 310.0, 40.0, 1.0], [270.0, 350.0, 30.0, 0.7], [650.0, 700.0, 50.0, 0.9]])
+    return Scenario(feats, robots, params or SimParams(num_robots=len(robots), num_features=len(feats)), seed=5)
+
+
+#: Robot 0 at (300, 300); robot 1 its neighbour (< r_c = 256 m); robots 2-4 beyond r_c of robot 0.
+ROBOTS = [[300.0, 300.0], [360.0, 330.0], [700.0, 700.0], [900.0, 200.0], [200.0, 800.0]]
+
+
+def _candidates(seed: int, n: int) -> np.ndarray:
+    """[K, N, 2] m/s, speeds up to u_max."""
+    return np.random.default_rng(seed).uniform(-3.5, 3.5, (K, n, 2))
+
+
+class Capture:
+    """Wraps :func:`select_actions` to keep what the policy chose among."""
+
+    def __init__(self, monkeypatch):
+        self.calls = []
+        monkeypatch.setattr(madp_policy, "select_actions", self)
+
+    def __call__(self, select, env, candidates):
+        chosen = select_actions(select, env, candidates)
+        self.calls.append((candidates.copy(), chosen))
+        return chosen
+
+
+def test_oracle_keeps_the_joint_sample_of_lowest_true_cost_after_the_step(model, monkeypatch):
+    env = CoverageEnv(Scenario.random(3, SimParams(num_robots=6, num_features=4)))
+    before = env.positions_m.copy()
+    seen = Capture(monkeypatch)
+    policy = MADPPolicy(model, "decentralized", SamplingSettings(select="oracle", candidates=K))
+    u = policy.act_batch([env], [noise_generator(9)])[0]
+    (cands, chosen), = seen.calls
+    assert cands.shape == (K, 6, 2) and np.abs(cands[1:] - cands[0]).max() > 1e-3  # K different joint samples
+    direct = []
+    for k in range(K):  # the true J after really stepping a copy of the environment
+        e = copy.deepcopy(env)
+        e.step(cands[k])
+        direct.append(e.cost())
+    np.testing.assert_array_equal(oracle_costs(env, cands), direct)  # the env's own motion rule, bit for bit
+    best = int(np.argmin(direct))
+    assert len(set(direct)) == K
+    np.testing.assert_array_equal(u, cands[best])
+    np.testing.assert_array_equal(env.positions_m, before)  # the oracle stepped copies only
+
+
+def test_the_local_cell_cost_is_what_the_formula_says():
+    """One robot, checked point by point on the coarse grid (a loop here, vectorised in the code)."""
+    env = CoverageEnv(_scenario(ROBOTS))
+    views = local_views(env)
+    u = _candidates(1, 5).transpose(1, 0, 2)
+    got = local_cell_costs(views, u, env.params)
+    grid = select_mod.GRID_M
+    own = env.maps.robot_map(0).astype(np.float64)
+    cx, cy = env.cells()[0]
+    total = np.zeros(K)
+    for k in range(K):
+        y = env.positions_m[0] + u[0, k] * env.params.dt_s  # |u| <= u_max and far from the border: no clipping
+        for a in range(0, 256, grid):
+            for b in range(0, 256, grid):
+                x0, y0 = cx - 128 + a, cy - 128 + b
+                if not (0 <= x0 < 1024 and 0 <= y0 < 1024):
+                    continue
+                q = np.array([x0 + grid / 2, y0 + grid / 2])
+                mass = own[x0:x0 + grid, y0:y0 + grid].sum()
+                d = ((q - y) ** 2).sum()
+                if d <= ((q - env.positions_m[1]) ** 2).sum():  # robot 1 is robot 0's only neighbour
+                    total[k] += mass * d
+    np.testing.assert_allclose(got[0], total, rtol=1e-9)
+    assert np.ptp(got[0]) > 0
+
+
+def test_the_cell_rule_reads_only_what_a_robot_knows():
+    """Robot 0's choice does not change when the world changes outside what it sensed or a robot
+    beyond its r_c moves; it does when a neighbour moves or its own sensed map changes."""
+    base = CoverageEnv(_scenario(ROBOTS))
+    cands = _candidates(2, 5)
+    r0 = lambda env: local_cell_costs(local_views(env), cands.transpose(1, 0, 2), env.params)[0]  # noqa: E731
+    choice0 = lambda env: select_actions("cell", env, cands)[0]  # noqa: E731
+
+    sensed = base.maps.robot_map(0) > 0
+    assert sensed.sum() > 1000  # it has seen part of a feature
+    world = base.world_map.copy()
+    world[~sensed] += 0.3  # everything robot 0 has not sensed, its local window included
+    unseen = CoverageEnv(_scenario(ROBOTS), world_map=world)
+    far = [*ROBOTS[:2], [600.0, 500.0], *ROBOTS[3:]]  # robot 2 moves, still 360 m from robot 0
+    moved_far = CoverageEnv(_scenario(far))
+    assert np.linalg.norm(np.subtract(far[2], ROBOTS[0])) > base.params.comm_radius_m
+    for other in (unseen, moved_far):
+        np.testing.assert_array_equal(r0(other), r0(base))
+        np.testing.assert_array_equal(choice0(other), choice0(base))
+    assert oracle_costs(unseen, cands)[0] != oracle_costs(base, cands)[0]  # the true J did change
+
+    near = [ROBOTS[0], [330.0, 290.0], *ROBOTS[2:]]  # the neighbour moves
+    assert np.abs(r0(CoverageEnv(_scenario(near))) - r0(base)).max() > 1e-6 * r0(base).max()
+    seen_world = base.world_map.copy()
+    seen_world[sensed] *= 0.5
+    assert np.abs(r0(CoverageEnv(_scenario(ROBOTS), world_map=seen_world)) - r0(base)).max() > 1e-6 * r0(base).max()
+
+
+def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
+    env = CoverageEnv(_scenario(ROBOTS))
+    cands = _candidates(3, 5)
+    costs = local_cell_costs(local_views(env), cands.transpose(1, 0, 2), env.params)
+    w = mppi_weights(costs)
+    np.testing.assert_allclose(w.sum(1), 1.0)
+    assert (w.argmax(1) == costs.argmin(1)).all() and (w.max(1) < 1).all()
+    np.testing.assert_allclose(mppi_weights(costs * 7 + 3), w)  # λ scales with the costs' spread
+    np.testing.assert_allclose(mppi_weights(np.ones((2, K))), 1 / K)  # no spread: the mean
+    monkeypatch.setattr(select_mod, "MPPI_TEMPERATURE", 1e-9)
+    spread = np.ptp(costs, axis=1) > 0  # robots 3 and 4 see no importance: equal costs, the mean
+    assert spread.sum() == 3
+    sharp = select_actions("mppi", env, cands)
+    np.testing.assert_allclose(sharp[spread], select_actions("cell", env, cands)[spread], atol=1e-12)
+    np.testing.assert_allclose(sharp[~spread], cands.mean(0)[~spread], atol=1e-12)
+    monkeypatch.setattr(select_mod, "MPPI_TEMPERATURE", 1e9)
+    np.testing.assert_allclose(select_actions("mppi", env, cands), cands.mean(0), atol=1e-8)
+    assert np.abs(cands.mean(0) - select_actions("cell", env, cands)).max() > 0.1
+
+
+@pytest.mark.parametrize("mode", ["decentralized", "centralized"])
+def test_one_candidate_without_selection_is_the_sampling_unchanged(model, mode):
+    """K = 1, select none: the model's own sample with the generator's first draw, bit for bit."""
+    env = CoverageEnv(Scenario.random(4, SimParams(num_robots=5, num_features=4)))
+    policy = MADPPolicy(model, mode, SamplingSettings(select="none", candidates=1))
+    fn = model.sample_decentralized if mode == "decentralized" else model.sample
+    obs = torch.from_numpy(env.observations())[None]
+    pos = torch.from_numpy(env.positions_m.astype(np.float32))[None]
+    z = torch.randn(1, 5, 2, generator=noise_generator(11))
+    with torch.no_grad():
+        direct = model.denormalize_actions(fn(obs, pos, 3, 0.0, sampler="dpm++", noise=z)).double().numpy()[0]
+    expected = clip_speed(direct, env.params.max_speed_mps)
+    np.testing.assert_array_equal(policy.act_batch([env], [noise_generator(11)])[0], expected)
+    np.testing.assert_array_equal(policy.sample(env, 1, noise_generator(11))[0], expected)
+
+
+@pytest.mark.parametrize("select,candidates,setting", [
+    ("best", 4, "select"), ("cell", 0, "candidates"), ("none", -1, "candidates"), ("mppi", 2.5, "candidates"),
+    ("oracle", 1, "select/candidates"), ("none", 4, "select/candidates"),
+])
+def test_bad_selection_settings_are_refused(select, candidates, setting):
+    with pytest.raises(SettingError) as e:
+        SamplingSettings(select=select, candidates=candidates)
+    assert e.value.setting == setting and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("args,line", [
+    (["eval", "--select", "oracle"], "madp: error: --select/--candidates: select oracle chooses among several samples "
+                                     "per robot: expected candidates > 1, got 1"),
+    (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
+                                                       "samples per robot >= 1, got 0"),
+    (["eval", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
+                                    "among them (oracle, cell or mppi), got select none"),
+    (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
+                                                        "mppi, got 'vote'"),
+])
+def test_bad_selection_flags_are_one_line(tmp_path, args, line):
+    assert assert_one_line(*cli(*args, "--out", tmp_path / "o")) == line
+
+
+def test_rollout_refuses_bad_selection_flags_in_one_line(tmp_path):
+    sc = tmp_path / "s.json"
+    sc.write_text('{"features": [], "robots": [[1, 1]]}')
+    code, err = cli("rollout", "--scenario", sc, "--controller", "madp", "--select", "mppi")
+    assert_one_line(code, err, "--select/--candidates")
