@@ -212,7 +212,7 @@ def eval_cmd(
     ddim_steps: Optional[int] = typer.Option(None, min=1, hidden=True, help="Old spelling of --sampler ddim --sampling-steps S."),
     eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),
-    frame: str = typer.Option("world", help="MADP: world (the world's axes) | d4 (a random rotation/reflection of the world per step, shared by the swarm)."),
+    frame: str = typer.Option("d4", help="MADP: d4 (the default: a random rotation/reflection of the world per step, shared by the swarm) | world (the world's own axes)."),
     select: str = SELECT,
     candidates: int = CANDIDATES,
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),

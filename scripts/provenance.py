@@ -8,7 +8,7 @@ madp/checkpoints/<model>-<preset>.safetensors (copy it there first). The record 
 run's files; a warm start from a file that no run directory describes (an earlier shipped checkpoint)
 is recorded from the provenance.json already here, matched by sha256. Every dataset a round trained on
 is listed with its command, seed, sample count and manifest sha256 — for relabelled (DAgger) sets also
-the policy that drove their rollouts.
+the policy that drove their rollouts. Checkpoints not named keep their earlier record.
 """
 
 import hashlib
@@ -89,20 +89,20 @@ def rounds(run: Path) -> list[dict]:
 
 record = {
     "git_commit": subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip(),
-    "checkpoints": {},
+    # checkpoints not named on the command line keep their record (each names the expert dataset whose
+    # training split's action statistics it normalises with: "dataset")
+    "checkpoints": {name: {**rec, "dataset": rec.get("dataset", previous.get("dataset"))}
+                    for name, rec in previous["checkpoints"].items()},
 }
 for run in map(Path, sys.argv[1:]):
     cfg = json.loads((run / "config.json").read_text())
     t = cfg["train"]
-    # the expert dataset whose training split's action statistics every round normalises with
     expert = {"command": cfg["dataset"]["created_by"], "root": cfg["dataset"]["root"], "action_stats": cfg["action_stats"]}
-    if record.setdefault("dataset", expert)["action_stats"] != expert["action_stats"]:
-        raise SystemExit(f"{run}: trained with other action statistics than {sys.argv[1]}")
     name = f"{t['model']}-{t['preset']}.safetensors"
     f = root / "madp" / "checkpoints" / name
     chain = rounds(run)
     if sha256(f) != chain[-1]["policy_sha256"]:
         raise SystemExit(f"{f} is not {run}/checkpoints/best/policy.safetensors: copy it there first")
-    record["checkpoints"][name] = {"sha256": sha256(f), "bytes": f.stat().st_size, "rounds": chain}
+    record["checkpoints"][name] = {"sha256": sha256(f), "bytes": f.stat().st_size, "dataset": expert, "rounds": chain}
 out.write_text(json.dumps(record, indent=1) + "\n")
 print(out)

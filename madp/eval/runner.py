@@ -63,7 +63,7 @@ class EvalConfig:
     sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
     fixed_noise: bool = False
-    frame: str = "world"
+    frame: str = "d4"
     select: str = "none"  # MADP: choosing among `candidates` samples per robot (madp.policies.select)
     candidates: int = 1
     workers: int = 0

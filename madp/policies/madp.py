@@ -68,7 +68,7 @@ class SamplingSettings:
     sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
     fixed_noise: bool = False
-    frame: str = "world"
+    frame: str = "d4"
     select: str = "none"
     candidates: int = 1
 
@@ -80,7 +80,7 @@ class SamplingSettings:
 
     @classmethod
     def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
-           fixed_noise: bool = False, frame: str = "world", select: str = "none", candidates: int = 1
+           fixed_noise: bool = False, frame: str = "d4", select: str = "none", candidates: int = 1
            ) -> "SamplingSettings":
         """The settings with ``None`` standing for the default sampler and S."""
         return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,

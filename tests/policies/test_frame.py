@@ -55,7 +55,7 @@ def test_actions_in_a_frame_are_equivariant(model, monkeypatch):
 def test_world_frame_is_the_model_unchanged(model):
     sc = Scenario.random(4, SimParams(num_robots=5, num_features=4))
     env = CoverageEnv(sc)
-    plain = MADPPolicy(model, "decentralized").sample(env, 1, generator=torch.Generator().manual_seed(1))
+    plain = MADPPolicy(model, "decentralized", SamplingSettings(frame="world")).sample(env, 1, generator=torch.Generator().manual_seed(1))
     obs = torch.from_numpy(env.observations())[None]
     pos = torch.from_numpy(env.positions_m.astype(np.float32))[None]
     z = torch.randn(1, 5, 2, generator=torch.Generator().manual_seed(1))

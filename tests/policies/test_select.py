@@ -161,9 +161,9 @@ def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
 
 @pytest.mark.parametrize("mode", ["decentralized", "centralized"])
 def test_one_candidate_without_selection_is_the_sampling_unchanged(model, mode):
-    """K = 1, select none: the model's own sample with the generator's first draw, bit for bit."""
+    """K = 1, select none, the world frame: the model's own sample with the generator's first draw, bit for bit."""
     env = CoverageEnv(Scenario.random(4, SimParams(num_robots=5, num_features=4)))
-    policy = MADPPolicy(model, mode, SamplingSettings(select="none", candidates=1))
+    policy = MADPPolicy(model, mode, SamplingSettings(select="none", candidates=1, frame="world"))
     fn = model.sample_decentralized if mode == "decentralized" else model.sample
     obs = torch.from_numpy(env.observations())[None]
     pos = torch.from_numpy(env.positions_m.astype(np.float32))[None]

@@ -284,7 +284,7 @@ def test_shipped_checkpoints_match_their_record_load_and_act_like_trained_polici
         data = path.read_bytes()
         assert len(data) == rec["bytes"] and hashlib.sha256(data).hexdigest() == rec["sha256"], name
         model, meta = load(path, kind)
-        stats = prov["dataset"]["action_stats"]
+        stats = rec["dataset"]["action_stats"]
         assert torch.allclose(model.action_mean, torch.tensor(stats["mean"], dtype=torch.float32))
         assert torch.allclose(model.action_std, torch.tensor(stats["std"], dtype=torch.float32))
         policy = MADPPolicy(model, seed=0) if kind == "madp" else LPACPolicy(model)
