@@ -64,6 +64,10 @@ def rounds(run: Path) -> list[dict]:
     init = t.get("init")
     if init:
         args += f" --init {init}"
+    if t.get("augment", "none") != "none":
+        args += f" --augment {t['augment']}"
+    if t.get("seed") is not None:
+        args += f" --seed {t['seed']}"
     this = {
         "command": (f"madp train --model {t['model']} --preset {t['preset']} {args} --lr {t['lr']:g} "
                     f"--out {t['out']} --threads 1 --epochs {t['epochs']} --max-steps-per-epoch {t['max_steps_per_epoch']}"),
