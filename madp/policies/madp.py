@@ -52,7 +52,8 @@ class SamplingSettings:
 
     * ``world``: the world's own axes;
     * ``d4``: at every control step the swarm acts in one of the world's 8 rotations and reflections
-      (:mod:`madp.models.symmetry`), drawn from the episode's seed and the step count (what robots
+      (:mod:`madp.models.symmetry`), drawn from the episode's seed (the scenario's, else the policy's)
+      and the step count (what robots
       sharing a seed can all compute): the state is moved by it, the model samples there, and the
       actions are moved back. The policy's action distribution is then exactly equivariant to the
       world's symmetries, and a direction the model prefers in its own axes changes every step.
@@ -120,6 +121,7 @@ class MADPPolicy:
         self.reset(seed)
 
     def reset(self, seed: int) -> None:
+        self.seed = int(seed)
         self.generator = noise_generator(seed)
         self._fixed = {}
 
@@ -145,7 +147,7 @@ class MADPPolicy:
         if self.frame == "world":
             u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
             return self.model.denormalize_actions(u).double().cpu()
-        gs = [frame_element(e.scenario.seed, e.steps) for e in envs]
+        gs = [frame_element(self.seed if e.scenario.seed is None else e.scenario.seed, e.steps) for e in envs]
         gs = gs * len(obs) if len(gs) == 1 else gs
         w = float(envs[0].params.world_size)
         moved = [transform_state(o, x, g, w) for o, x, g in zip(obs, pos, gs)]

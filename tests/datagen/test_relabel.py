@@ -55,7 +55,9 @@ def test_manifest_records_policy_beta_and_parent(madp_relabelled):
     m, b, first = first_episode(madp_relabelled)
     pol = m.params["policy"]
     assert pol["sha256"] == sha256_file(shipped_checkpoint("madp")) and pol["kind"] == "madp" and pol["beta"] == 0.25
-    assert pol["parent"]["created_by"].startswith("madp datagen --n 100000")  # the data the policy learned from
+    prov = json.loads((shipped_checkpoint("madp").parent / "provenance.json").read_text())
+    expert = prov["checkpoints"][shipped_checkpoint("madp").name]["dataset"]["command"]
+    assert pol["parent"]["created_by"].startswith(expert)  # the data the policy learned from
     assert "--policy" in m.created_by and "--beta 0.25" in m.created_by
     # episodes run the whole horizon (t = 0, 5, ..., 50), not until the expert's labels are zero
     assert list(b.step[first]) == list(range(0, 51, 5))
