@@ -31,7 +31,7 @@ def plot_paired(cmp: dict[str, Any]):
     labels = list(cmp["groups"]) + (["all"] if len(cmp["groups"]) > 1 else [])
     n_rows, n_runs = len(labels), len(others)
     colors = {n: f"C{i % 10}" for i, n in enumerate(others)}
-    fig = Figure(figsize=(1.6 + 4.2 * len(panels), 2.0 + 0.3 * n_rows * max(1.0, 0.6 * n_runs)), dpi=_DPI,
+    fig = Figure(figsize=(max(7.5, 1.6 + 4.2 * len(panels)), 2.0 + 0.3 * n_rows * max(1.0, 0.6 * n_runs)), dpi=_DPI,
                  layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
@@ -65,6 +65,6 @@ def plot_paired(cmp: dict[str, Any]):
                loc="outside lower center", ncols=min(n_runs, 4), fontsize=8,
                title=f"mean paired difference, {cmp['confidence']:.0%} t interval, wins k/n (run below {base})",
                title_fontsize=8)
-    fig.suptitle(f"{cmp['suite']}: final cost J(T)/J(0) minus {base}'s on the same environments "
+    fig.suptitle(f"{cmp['suite']}: final cost J(T)/J(0) minus {base}'s on the same environments\n"
                  f"(left of 0: lower cost than {base})", fontsize=10)
     return fig
