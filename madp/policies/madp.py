@@ -53,8 +53,7 @@ class SamplingSettings:
     * ``world``: the world's own axes;
     * ``d4``: at every control step the swarm acts in one of the world's 8 rotations and reflections
       (:mod:`madp.models.symmetry`), drawn from the episode's seed (the scenario's, else the policy's)
-      and the step count (what robots
-      sharing a seed can all compute): the state is moved by it, the model samples there, and the
+      and the step count (what robots sharing a seed can all compute): the state is moved by it, the model samples there, and the
       actions are moved back. The policy's action distribution is then exactly equivariant to the
       world's symmetries, and a direction the model prefers in its own axes changes every step.
 
@@ -144,16 +143,15 @@ class MADPPolicy:
         """Actions ``[B, N, 2]`` (m/s, float64 on the CPU) for ``obs [B, N, 4, S, S]``, ``pos [B, N, 2]``,
         the states of ``envs`` (one per b, or one for all: several samples of one state)."""
         fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
-        if self.frame == "world":
-            u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
-            return self.model.denormalize_actions(u).double().cpu()
-        gs = [frame_element(self.seed if e.scenario.seed is None else e.scenario.seed, e.steps) for e in envs]
-        gs = gs * len(obs) if len(gs) == 1 else gs
-        w = float(envs[0].params.world_size)
-        moved = [transform_state(o, x, g, w) for o, x, g in zip(obs, pos, gs)]
-        u = fn(torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved]), self.num_steps, self.eta,
-               sampler=self.sampler, noise=noise, step_noise=step_noise)
+        if self.frame == "d4":
+            gs = [frame_element(self.seed if e.scenario.seed is None else e.scenario.seed, e.steps) for e in envs]
+            gs = gs * len(obs) if len(gs) == 1 else gs
+            moved = [transform_state(o, x, g, float(envs[0].params.world_size)) for o, x, g in zip(obs, pos, gs)]
+            obs, pos = torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved])
+        u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
         u = self.model.denormalize_actions(u).double().cpu()
+        if self.frame == "world":
+            return u
         return torch.stack([inverse_actions(ub, g) for ub, g in zip(u, gs)])
 
     @torch.no_grad()
