@@ -239,7 +239,7 @@ def eval_cmd(
         sampler, sampling_steps = "ddim", ddim_steps
     sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame, select, candidates)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
-                     madp=str(madp) if madp else None, **sampling.as_dict(), workers=workers, ray=ray,
+                     madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
                      named=tuple(named.items()))
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)

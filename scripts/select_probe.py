@@ -21,6 +21,7 @@ import torch
 
 import madp.policies.select as select
 from madp.eval.runner import EvalConfig, available_controllers, run_suite
+from madp.policies import SamplingSettings
 from madp.sim.env import move
 
 
@@ -65,7 +66,8 @@ def main() -> None:
     if args.map == "true":
         select.local_views = true_map_views
     cfg = EvalConfig(suite="uniform", out=args.out, num_envs=args.envs, steps=args.steps, controllers=("madp",),
-                     select="cell", candidates=args.candidates, workers=1)  # one process: the patches hold
+                     sampling=SamplingSettings(select="cell", candidates=args.candidates),
+                     workers=1)  # one process: the patches hold
     cfg, _ = available_controllers(cfg, ("madp",), True)
     run_suite(cfg, "uniform", progress=False)
     t = pq.read_table(f"{args.out}/uniform/results.parquet").to_pydict()

@@ -130,6 +130,8 @@ def _final_costs(suite_dir: Path, controller: str) -> tuple[np.ndarray, float]:
 def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[int, ...]], envs: int, steps: int,
                       workers: int = 0, progress: bool = True, device: str = "cpu") -> dict:
     """Run (or resume, or read) the sweep; returns the per-setting statistics and S* per sampler."""
+    from madp.policies import SamplingSettings
+
     from .runner import EvalConfig, run_suite
 
     settings = [BASELINE] + [(s, k) for s, ks in grid.items() for k in ks if (s, k) != BASELINE]
@@ -137,8 +139,8 @@ def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[in
     for sampler, s in settings:
         controllers = SAMPLING if (sampler, s) == BASELINE else ("madp",)  # DDIM-50: the centralized pass too
         cfg = EvalConfig(suite="uniform", out=str(sweep_out / f"{sampler}-{s}"), num_envs=envs, steps=steps,
-                         controllers=controllers, madp=checkpoint, sampler=sampler, sampling_steps=s, workers=workers,
-                         device=device)
+                         controllers=controllers, madp=checkpoint,
+                         sampling=SamplingSettings(sampler=sampler, sampling_steps=s), workers=workers, device=device)
         run_suite(cfg, "uniform", progress=progress)
         suite_dir = Path(cfg.out) / "uniform"
         costs[(sampler, s)], step_ms[(sampler, s)] = _final_costs(suite_dir, "madp")

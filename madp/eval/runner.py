@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +38,7 @@ from madp.io.workers import die_with_parent
 from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, controller_info, file_stem, \
     is_named, make_controller
 from madp.errors import InputError, SettingError
-from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS
+from madp.policies import SamplingSettings
 from madp.sim import CoverageEnv
 from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, act_alone, run
 
@@ -59,13 +59,7 @@ class EvalConfig:
     lpac: str | None = None  # checkpoint paths (None: the shipped ones, if any)
     madp: str | None = None
     named: tuple[tuple[str, str], ...] = ()  # (named controller "madp:r4", its checkpoint path)
-    sampler: str = DEFAULT_SAMPLER
-    sampling_steps: int = DEFAULT_SAMPLING_STEPS
-    eta: float = 0.0
-    fixed_noise: bool = False
-    frame: str = "d4"
-    select: str = "none"  # MADP: choosing among `candidates` samples per robot (madp.policies.select)
-    candidates: int = 1
+    sampling: SamplingSettings = field(default_factory=SamplingSettings)  # MADP's sampler settings (checked)
     workers: int = 0
     ray: str | None = None  # run the jobs on Ray ("local", "auto" or an address: madp.io.ray_backend)
     record: int = 0
@@ -78,14 +72,6 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if self.ray is not None:
             import_ray()  # a one-line error now when Ray is not installed
-
-    @property
-    def sampling(self):
-        """MADP's :class:`madp.policies.SamplingSettings` of this evaluation."""
-        from madp.policies import SamplingSettings
-
-        return SamplingSettings(self.sampler, self.sampling_steps, self.eta, self.fixed_noise, self.frame, self.select,
-                                self.candidates)
 
     def checkpoint(self, controller: str) -> str | None:
         """The checkpoint this evaluation gives ``controller``: a named one's own (``madp:r4``), else its
@@ -285,7 +271,7 @@ def available_controllers(cfg: EvalConfig, requested: tuple[str, ...], explicit:
             load(path, kind)  # a missing or incompatible checkpoint is a one-line error now
             paths[kind] = path
         keep.append(c)
-    return EvalConfig(**{**cfg.__dict__, **paths, "controllers": tuple(keep)}), tuple(keep)
+    return replace(cfg, **paths, controllers=tuple(keep)), tuple(keep)
 
 
 def owned_files(suite_dir: Path) -> list[str]:
@@ -326,10 +312,9 @@ def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bo
 
 def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_dir: Path, overwrite: bool,
                       progress: bool) -> dict:
-    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, "sampler": cfg.sampler,
-                "sampling_steps": cfg.sampling_steps, "eta": cfg.eta, "fixed_noise": cfg.fixed_noise,
-                "frame": cfg.frame, "select": cfg.select, "candidates": cfg.candidates, "record": cfg.record,
-                "video": cfg.video, "env_keys": [e.key for e in envs],
+    # MADP's sampling as flat keys (sampler, sampling_steps, eta, …), as earlier suites wrote them.
+    settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, **cfg.sampling.as_dict(),
+                "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs], "device": cfg.device}
     # The checkpoints this run uses: per kind (the plain controllers') and per named controller.
     plain_kinds = {controller_info(c).kind for c in cfg.controllers if not is_named(c)}

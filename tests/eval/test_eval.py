@@ -12,6 +12,7 @@ from madp.eval.runner import EvalConfig, available_controllers, plan_jobs, run_b
 from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
 from madp.models import MADP, lpac_config, madp_config
 from madp.models.lpac import LPAC
+from madp.policies import SamplingSettings
 from madp.training.checkpoint import save_policy
 from tests.eval.conftest import META
 from tests.test_reliability_errors import assert_one_line, cli
@@ -43,7 +44,8 @@ def test_cities_suite_reads_city_files(cities_dir):
 
 
 def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
-    cfg = EvalConfig(suite="launch", out=str(tmp_path), num_envs=1, steps=12, workers=1, record=1, sampling_steps=3,
+    cfg = EvalConfig(suite="launch", out=str(tmp_path), num_envs=1, steps=12, workers=1, record=1,
+                     sampling=SamplingSettings(sampling_steps=3),
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     cfg, used = available_controllers(cfg, ("clairvoyant", "dcvt", "lpac", "madp", "madp_central"), explicit=True)
     run_suite(cfg, "launch", progress=False)
@@ -61,16 +63,16 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
     assert rollouts == sorted(f"uniform-000-{c}.mcap" for c in used)  # first environment only
     # the sampler and S are named in the tables, the summary and the recordings (MADP only)
     madp_rows = results[results.controller.str.startswith("madp")]
-    assert (madp_rows.sampler == cfg.sampler).all() and (madp_rows.sampling_steps == 3).all()
+    assert (madp_rows.sampler == cfg.sampling.sampler).all() and (madp_rows.sampling_steps == 3).all()
     assert (results[~results.controller.str.startswith("madp")].sampler == "").all()
     summary = json.loads((d / "summary.json").read_text())
-    assert summary["sampling"]["madp"] == {"sampler": cfg.sampler, "sampling_steps": 3, "frame": "d4"}
+    assert summary["sampling"]["madp"] == {"sampler": cfg.sampling.sampler, "sampling_steps": 3, "frame": "d4"}
     assert "S = 3" in (d / "summary.md").read_text()
     from mcap.reader import make_reader
 
     with open(d / "rollouts" / "uniform-000-madp.mcap", "rb") as f:
         md = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["madp.rollout"]
-    assert (md["sampler"], md["sampling_steps"]) == (cfg.sampler, "3")
+    assert (md["sampler"], md["sampling_steps"]) == (cfg.sampling.sampler, "3")
     # resume: drop one finished job, run again, tables identical
     before = (d / "results.parquet").read_bytes()
     (d / "jobs" / "line-000-dcvt.npz").unlink()
@@ -86,7 +88,8 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
 
 
 def test_new_checkpoint_reruns_only_its_controllers(tmp_path, checkpoints):
-    cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=3, workers=1, record=1, sampling_steps=2,
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=3, workers=1, record=1,
+                     sampling=SamplingSettings(sampling_steps=2),
                      controllers=("dcvt", "lpac", "madp_central"),
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     run_suite(cfg, "uniform", progress=False)
@@ -128,8 +131,8 @@ def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
                                                           ("madp", "dpm++", 0.0, True)])
 def test_batched_rollouts_match_lone_rollouts(tmp_path, checkpoints, controller, sampler, eta, fixed):
     """Learned controllers run several environments per policy call; each keeps its own noise."""
-    cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=4, sampler=sampler, sampling_steps=3, eta=eta,
-                     fixed_noise=fixed,
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=4,
+                     sampling=SamplingSettings(sampler=sampler, sampling_steps=3, eta=eta, fixed_noise=fixed),
                      lpac=str(checkpoints / "lpac.safetensors"), madp=str(checkpoints / "madp.safetensors"))
     envs = suite_envs("uniform", 3)
     run_batch(cfg, envs, controller, tmp_path / "batch")

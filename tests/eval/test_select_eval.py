@@ -3,6 +3,7 @@ setting travels into config.json, results.parquet, summary.json, summary.md and 
 metadata, is refused for a suite made with another, and batched rollouts match lone ones."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -10,12 +11,14 @@ import pytest
 
 from madp.eval.runner import EvalConfig, run_batch, run_job, run_suite
 from madp.eval.suites import suite_envs
+from madp.policies import SamplingSettings
 from tests.eval.test_record import _read
 
 
 def test_selection_is_named_in_every_output(tmp_path, checkpoints):
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=2, controllers=("dcvt", "madp"),
-                     madp=str(checkpoints / "madp.safetensors"), select="cell", candidates=2, workers=1, record=1)
+                     madp=str(checkpoints / "madp.safetensors"),
+                     sampling=SamplingSettings(select="cell", candidates=2), workers=1, record=1)
     run_suite(cfg, "uniform", progress=False)
     d = tmp_path / "uniform"
     summary = json.loads((d / "summary.json").read_text())
@@ -28,14 +31,15 @@ def test_selection_is_named_in_every_output(tmp_path, checkpoints):
     assert "each robot the best of its 2 samples by its own Voronoi cell's cost" in (d / "summary.md").read_text()
     _, meta, _ = _read(d / "rollouts" / "uniform-000-madp.mcap")
     assert any(m.get("select") == "cell" and m.get("candidates") == "2" for m in meta.values())
-    other = EvalConfig(**{**cfg.__dict__, "select": "mppi"})
+    other = replace(cfg, sampling=replace(cfg.sampling, select="mppi"))
     with pytest.raises(ValueError, match="other settings"):
         run_suite(other, "uniform", progress=False)
 
 
 def test_the_oracle_is_labelled_an_upper_bound(tmp_path, checkpoints):
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=1, steps=1, controllers=("madp",),
-                     madp=str(checkpoints / "madp.safetensors"), select="oracle", candidates=2, workers=1)
+                     madp=str(checkpoints / "madp.safetensors"),
+                     sampling=SamplingSettings(select="oracle", candidates=2), workers=1)
     run_suite(cfg, "uniform", progress=False)
     md = (tmp_path / "uniform" / "summary.md").read_text().splitlines()
     line = next(x for x in md if x.startswith("MADP sampling"))
@@ -45,7 +49,7 @@ def test_the_oracle_is_labelled_an_upper_bound(tmp_path, checkpoints):
 @pytest.mark.parametrize("select", ["oracle", "mppi"])
 def test_batched_rollouts_with_selection_match_lone_rollouts(tmp_path, checkpoints, select):
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=3, madp=str(checkpoints / "madp.safetensors"),
-                     select=select, candidates=3)
+                     sampling=SamplingSettings(select=select, candidates=3))
     envs = suite_envs("uniform", 2)
     run_batch(cfg, envs, "madp", tmp_path / "batch")
     for e in envs:
