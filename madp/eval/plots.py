@@ -229,6 +229,45 @@ def cities_heatmap_figure(summary: Mapping[str, Any], suite: str):
     return fig
 
 
+def plot_symmetry(path: Path, check: Mapping[str, Any], colors: Mapping[str, str], suite: str) -> Path | None:
+    """Write :func:`symmetry_figure` to ``path``; None when there is nothing to draw."""
+    fig = symmetry_figure(check, colors, suite)
+    return None if fig is None else _save(fig, path)
+
+
+def symmetry_figure(check: Mapping[str, Any], colors: Mapping[str, str], suite: str):
+    """One panel per launch layout of :func:`madp.eval.stats.symmetry_check`: each image's mean final
+    cost ± SE per controller, and the layout's mean over the images as a dashed line of the controller's
+    colour; a symmetric policy's points straddle its line."""
+    layouts = list(dict.fromkeys(lay for per in check.values() for lay in per))
+    if not layouts:
+        return None
+    fig = _new_figure(4.2 * len(layouts) + 1.0, 4.2)
+    axes = fig.subplots(1, len(layouts), squeeze=False)[0]
+    width = 0.6 / max(len(check), 1)
+    for ax, layout in zip(axes, layouts):
+        for j, (c, per) in enumerate(check.items()):
+            lay = per.get(layout)
+            if lay is None:
+                continue
+            g = np.array(sorted(lay["by_image"]))
+            rows = [lay["by_image"][k] for k in g]
+            ax.errorbar(g - 0.3 + width * (j + 0.5), [r["mean"] for r in rows], yerr=[r["se"] for r in rows], fmt="o",
+                        color=colors[c], capsize=3, label=f"{display_name(c)}: {lay['within']} of {lay['images']} "
+                                                          f"within one SE")
+            ax.axhline(lay["mean"], color=colors[c], ls="--", lw=1)
+        ax.set_xticks(np.arange(int(max(max(per[layout]["by_image"]) for per in check.values() if layout in per)) + 1))
+        ax.set_xlabel("image g of the world's symmetry group (0: the layout itself)")
+        ax.set_ylabel("final normalised cost J(T) / J(0)")
+        ax.set_title(f"{suite} · {layout}: mean ± SE per image (n = "
+                     f"{n_range(r['n'] for per in check.values() if layout in per for r in per[layout]['by_image'].values())})",
+                     fontsize=10)
+        ax.grid(True, axis="y", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def _n_env(summary: Mapping[str, Any]) -> str:
     """The environments per (group, controller) of a summary, as a number or a range."""
     return n_range(s["n"] for g in summary["groups"] for s in summary["by_group"].get(g, {}).values())

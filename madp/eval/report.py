@@ -26,7 +26,8 @@ The evaluation runner writes two Parquet tables into a suite directory ``runs/ev
   ``cities_heatmap.png`` (a red dot on each city's best deployable controller; the summary's "best in
   k of n cities") or the paper's Fig. 7 as ``scale_improvement_dcvt.png`` (left: MADP over DCVT) and
   ``scale_improvement_lpac.png`` (right: over LPAC-K3), on one colour scale, each drawn when its
-  baseline ran (MADP is ``madp`` when present, else ``madp_central``).
+  baseline ran (MADP is ``madp`` when present, else ``madp_central``), or ``symmetry.png`` (each
+  launch layout's images: mean ± SE per image beside the layout's mean, :func:`madp.eval.stats.symmetry_check`).
 
 Statistics, tables, plots and the paper's numbers live in their own modules; this one reads the
 tables and writes the files.
@@ -46,8 +47,8 @@ import pyarrow.parquet as pq
 from madp.controllers import display_name
 
 from .paper import PAPER_CONTROLLERS, PAPER_RESULTS
-from .plots import color_map, plot_cities_heatmap, plot_cost, plot_scale_improvement, plot_sigma_boxplot, scale_limit, \
-    unique_slugs
+from .plots import color_map, plot_cities_heatmap, plot_cost, plot_scale_improvement, plot_sigma_boxplot, \
+    plot_symmetry, scale_limit, unique_slugs
 from .stats import CONFIDENCE, column, cost_curve_bands, has_column, order_controllers, order_groups, sampling_used, \
     select_suite, summarize
 from .tables import markdown_table, sampling_markdown
@@ -152,6 +153,8 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
                                    controllers, summary["groups_meta"], colors, suite))
     elif suite == "cities":
         record(plot_cities_heatmap(suite_dir / "cities_heatmap.png", summary, suite))
+    elif suite == "symmetry":
+        record(plot_symmetry(suite_dir / "symmetry.png", summary["symmetry"], colors, suite))
     elif suite == "scale":
         matrices = summary.get("scale_improvement") or {}
         lim = scale_limit(matrices.values())

@@ -30,10 +30,13 @@ from scipy import stats
 from madp.controllers import BASELINES, NAMES, ORACLES, SAMPLING, split_name
 
 __all__ = ["CONFIDENCE", "best_per_group", "column", "cost_curve_bands", "grouped_stats", "has_column", "n_range", "natural_key", "order_controllers",
-           "order_groups", "sampling_used", "scale_improvement_matrix", "select_suite", "summarize"]
+           "order_groups", "sampling_used", "scale_improvement_matrix", "select_suite", "summarize", "symmetry_check"]
 
 #: Two-sided confidence level of every interval (Student t).
 CONFIDENCE = 0.95
+
+#: A group of the ``symmetry`` suite: a launch layout under element g of the world's symmetry group.
+SYMMETRY_GROUP = re.compile(r"^(?P<layout>.+)_d4-(?P<g>\d+)$")
 
 _META_COLUMNS = ("num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch")
 
@@ -174,7 +177,8 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
         "by_group": {group: {controller: stats}}, "overall": {controller: stats}}`` and, for the
         ``scale`` suite, ``"scale_improvement": {baseline: matrix dict}`` (see
         :func:`scale_improvement_matrix`) and, for the ``cities`` suite, ``"best"`` (each city's best
-        deployable controller and the counts, :func:`best_per_group`). ``stats`` holds ``n`` (environments), ``mean``, ``se``,
+        deployable controller and the counts, :func:`best_per_group`) and, for the ``symmetry`` suite,
+        ``"symmetry"`` (each image of a launch layout against the layout's mean, :func:`symmetry_check`). ``stats`` holds ``n`` (environments), ``mean``, ``se``,
         ``ci_lo``, ``ci_hi``, ``median``, ``std`` of ``final_cost`` and ``mean_step_ms`` (mean over
         the environments). ``overall`` pools every (group, env) of the suite. Controllers are in
         :func:`order_controllers` order, groups in :func:`order_groups` (natural) order; a
@@ -235,6 +239,8 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
     }
     if suite == "cities":
         summary["best"] = best_per_group(summary)
+    if suite == "symmetry":
+        summary["symmetry"] = symmetry_check(summary)
     # MADP in the scale matrices: the decentralized policy when it ran, else the centralized-masked one.
     method = next((c for c in controllers if c in SAMPLING), None)
     if suite == "scale" and method is not None and \
@@ -272,6 +278,35 @@ def best_per_group(summary: Mapping[str, Any]) -> dict[str, Any]:
     counts = {c: sum(c in b for b in best.values()) for c in competing}
     excluded = [c for c in summary["controllers"] if c not in competing]
     return {"best": best, "counts": counts, "groups": len(best), "excluded": excluded}
+
+
+def symmetry_check(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """Whether each controller costs the same on every image of a launch layout (the ``symmetry``
+    suite: groups ``<layout>_d4-<g>``, the same environments moved by the world's rotations and
+    reflections, which leave the task unchanged).
+
+    For every controller and layout: ``mean``, the mean over the layout's images of their mean final
+    costs, and per image ``g``: ``mean``, ``se``, ``n``, ``deviation`` (image mean − layout mean) and
+    ``within_se`` (|deviation| ≤ the image's SE); ``within`` counts those images, ``images`` how
+    many ran. Returns ``{controller: {layout: {...}}}``; groups of other names are ignored."""
+    out: dict[str, Any] = {}
+    for c in summary["controllers"]:
+        layouts: dict[str, dict[int, Mapping[str, Any]]] = {}
+        for g in summary["groups"]:
+            m, st = SYMMETRY_GROUP.match(g), summary["by_group"].get(g, {}).get(c)
+            if m is not None and st is not None and finite(st.get("mean")):
+                layouts.setdefault(m["layout"], {})[int(m["g"])] = st
+        for layout, images in layouts.items():
+            mean = float(np.mean([st["mean"] for st in images.values()]))
+            rows = {}
+            for g in sorted(images):
+                st = images[g]
+                dev = float(st["mean"]) - mean
+                rows[g] = {"mean": float(st["mean"]), "se": float(st["se"]), "n": int(st["n"]), "deviation": dev,
+                           "within_se": bool(finite(st["se"]) and abs(dev) <= st["se"])}
+            out.setdefault(c, {})[layout] = {"mean": mean, "by_image": rows, "images": len(rows),
+                                             "within": sum(r["within_se"] for r in rows.values())}
+    return out
 
 
 def cost_curve_bands(controller: np.ndarray, env_key: np.ndarray, step: np.ndarray, cost: np.ndarray,

@@ -13,7 +13,7 @@ from madp.controllers import display_name
 from .paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
 from .stats import CONFIDENCE, finite, n_range
 
-__all__ = ["ALL_ROW", "SAMPLER_NAMES", "best_markdown", "markdown_table", "sampling_markdown"]
+__all__ = ["ALL_ROW", "SAMPLER_NAMES", "best_markdown", "markdown_table", "sampling_markdown", "symmetry_markdown"]
 
 #: Row label of the whole-suite row of the Markdown tables (and key of ``summary["overall"]``).
 ALL_ROW = "all"
@@ -53,6 +53,7 @@ def markdown_table(summary: Mapping[str, Any], suite: str | None = None) -> str:
     2. ``cities`` suite only (``summary["best"]``, :func:`madp.eval.stats.best_per_group`): per
        controller, in how many cities it ends at the lowest mean cost, "best in k of n cities"; the
        clairvoyant expert (an oracle) is not counted, and the caption says so.
+       ``symmetry`` suite only (``summary["symmetry"]``): :func:`symmetry_markdown`.
     3. Mean wall time per control step (ms): same rows and controller columns.
     4. ``scale`` suite only: per baseline, the N × F matrix of relative improvement of MADP.
     """
@@ -81,6 +82,8 @@ def markdown_table(summary: Mapping[str, Any], suite: str | None = None) -> str:
 
     if summary.get("best"):
         lines += ["", best_markdown(summary["best"])]
+    if summary.get("symmetry"):
+        lines += ["", symmetry_markdown(summary["symmetry"])]
 
     lines += ["", f"Mean wall time per control step (ms), suite `{suite}`:", ""]
     header = ["group"] + [display_name(c) for c in controllers]
@@ -111,6 +114,24 @@ def best_markdown(best: Mapping[str, Any], what: str = "cities") -> str:
                      f"map, no deployed swarm does) is shown in the tables but not counted.")
     lines += ["", _md_row(["controller", "best in"]), _md_row(["---", "---"])]
     lines += [_md_row([display_name(c), f"{k} of {n} {what}"]) for c, k in best["counts"].items()]
+    return "\n".join(lines)
+
+
+def symmetry_markdown(check: Mapping[str, Any]) -> str:
+    """The table of :func:`madp.eval.stats.symmetry_check`: per controller and layout, each image's mean
+    final cost and its deviation from the layout's mean over the images, and how many images lie within
+    one SE of it."""
+    images = sorted({g for layouts in check.values() for lay in layouts.values() for g in lay["by_image"]})
+    lines = ["Symmetry: each image's mean final cost (its deviation from the layout's mean over the images); "
+             "✓ where the deviation is within the image's SE.", ""]
+    header = ["controller", "layout", "mean"] + [f"image {g}" for g in images] + ["within one SE"]
+    lines += [_md_row(header), _md_row(["---"] * len(header))]
+    for c, layouts in check.items():
+        for layout, lay in layouts.items():
+            cells = [f"{r['mean']:.3f} ({r['deviation']:+.3f}){' ✓' if r['within_se'] else ''}"
+                     if (r := lay["by_image"].get(g)) else "—" for g in images]
+            lines.append(_md_row([display_name(c), layout, f"{lay['mean']:.3f}"] + cells
+                                 + [f"{lay['within']} of {lay['images']}"]))
     return "\n".join(lines)
 
 

@@ -124,3 +124,44 @@ def test_the_uniform_plot_shades_the_95_percent_band_of_its_curves():
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
     assert legend[2].startswith("MADP:r4 (final ")
     assert "mean ± 1.96·SE" in ax.get_legend().get_title().get_text()
+
+
+def test_symmetry_check_against_pandas_and_in_the_report(tmp_path):
+    """The symmetry suite's check (issue 25): each image's mean against the layout's mean over its images,
+    within the image's SE or not, counted per layout; in summary.json, summary.md and symmetry.png."""
+    groups = {f"{lay}_d4-{g}": {"launch": lay} for lay in ("line", "square") for g in range(8)}
+    curves, results = make_suite("symmetry", groups, controllers=("lpac", "madp"), n_envs=4, steps=3, seed=5)
+    df = results.to_pandas()
+    df["layout"] = df.group.str.split("_d4-").str[0]
+    df["image"] = df.group.str.split("_d4-").str[1].astype(int)
+    summary = summarize(results, "symmetry")
+    check = summary["symmetry"]
+    assert set(check) == {"lpac", "madp"} and set(check["madp"]) == {"line", "square"}
+    for (c, lay), x in df.groupby(["controller", "layout"]):
+        per = x.groupby("image").final_cost.agg(["mean", "std", "count"])
+        layout_mean = per["mean"].mean()
+        se = per["std"] / np.sqrt(per["count"])
+        got = check[c][lay]
+        assert got["mean"] == pytest.approx(layout_mean, rel=1e-12)
+        for g, row in per.iterrows():
+            r = got["by_image"][g]
+            assert r["deviation"] == pytest.approx(row["mean"] - layout_mean, abs=1e-12)
+            assert r["se"] == pytest.approx(se[g], rel=1e-9)
+            assert r["within_se"] == (abs(row["mean"] - layout_mean) <= se[g])
+        assert got["within"] == int((np.abs(per["mean"] - layout_mean) <= se).sum()) and got["images"] == 8
+    # some images in, some out: the synthetic costs are noise, so the test can tell the two apart
+    flags = [r["within_se"] for per in check.values() for lay in per.values() for r in lay["by_image"].values()]
+    assert any(flags) and not all(flags)
+    # a policy that costs the same on every image is within on all of them
+    cost = df.final_cost.to_numpy() * 0 + df.env.to_numpy() * 0.1 + 0.2
+    flat = results.set_column(results.column_names.index("final_cost"), "final_cost", pa.array(cost))
+    assert all(lay["within"] == 8 for per in summarize(flat, "symmetry")["symmetry"].values() for lay in per.values())
+    assert "symmetry" not in summarize(make_suite("launch", {"line": {"launch": "line"}}, n_envs=2)[1], "launch")
+
+    files = write_report(write_suite(tmp_path / "symmetry", curves, results), "symmetry")
+    assert "symmetry.png" in files
+    doc = strict_json(files["summary.json"])
+    assert doc["symmetry"]["madp"]["line"]["within"] == check["madp"]["line"]["within"]
+    md = files["summary.md"].read_text()
+    assert f"| MADP | line | {check['madp']['line']['mean']:.3f} |" in md
+    assert f"{check['madp']['square']['within']} of 8 |" in md
