@@ -3,8 +3,9 @@
 # Run from the repository root after `bash scripts/quickstart.sh` (or any install into .venv).
 # Round 0 trains on the expert data; scripts/train_dagger.sh then runs the expert-relabelling rounds
 # (MADP: 2, LPAC-K3: 1), scripts/train_rounds_3to5.sh MADP's rounds 3-5 (narrow features, 128-robot
-# swarms) and scripts/train_round6.sh round 6 (packed starts, d4 augmentation); the last round of each
-# is shipped. About 7.5 h on 2 cores end to end.
+# swarms), scripts/train_round6.sh round 6 (packed starts, d4 augmentation) and scripts/train_round7.sh
+# round 7 (narrow features and 128-robot swarms back in the mix); the last round of each is shipped.
+# About 8 h on 2 cores end to end.
 # Results do not depend on running the two trainings side by side or one after the other.
 set -euo pipefail
 DATA=${DATA:-/work/data100k}
@@ -22,6 +23,8 @@ mkdir -p madp/checkpoints
 DATA=$DATA MADP2=runs/madp-r2/checkpoints/best/policy.safetensors bash scripts/train_rounds_3to5.sh
 # Round 6: relabelled rollouts from packed launches, --augment d4 (README, Exploration from packed starts)
 R5=runs/madp-r5/checkpoints/best/policy.safetensors OUT=runs/madp-r6 bash scripts/train_round6.sh
-cp runs/madp-r6/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
+# Round 7: narrow features and 128-robot swarms back in the mix (README, Policy quality)
+R6=runs/madp-r6/checkpoints/best/policy.safetensors OUT=runs/madp-r7 bash scripts/train_round7.sh
+cp runs/madp-r7/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
 cp runs/lpac-r1/checkpoints/best/policy.safetensors madp/checkpoints/lpac-cpu.safetensors
-.venv/bin/python scripts/provenance.py runs/madp-r6 runs/lpac-r1
+.venv/bin/python scripts/provenance.py runs/madp-r7 runs/lpac-r1
