@@ -257,7 +257,7 @@ def symmetry_figure(check: Mapping[str, Any], colors: Mapping[str, str], suite: 
                                                           f"within one SE")
             ax.axhline(lay["mean"], color=colors[c], ls="--", lw=1)
         ax.set_xticks(np.arange(int(max(max(per[layout]["by_image"]) for per in check.values() if layout in per)) + 1))
-        ax.set_xlabel("image g of the world's symmetry group (0: the layout itself)")
+        ax.set_xlabel("image g under the world's symmetry group (0: the layout)")
         ax.set_ylabel("final normalised cost J(T) / J(0)")
         ax.set_title(f"{suite} · {layout}: mean ± SE per image (n = "
                      f"{n_range(r['n'] for per in check.values() if layout in per for r in per[layout]['by_image'].values())})",
