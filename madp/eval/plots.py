@@ -246,22 +246,19 @@ def symmetry_figure(check: Mapping[str, Any], colors: Mapping[str, str], suite: 
     axes = fig.subplots(1, len(layouts), squeeze=False)[0]
     width = 0.6 / max(len(check), 1)
     for ax, layout in zip(axes, layouts):
-        for j, (c, per) in enumerate(check.items()):
-            lay = per.get(layout)
-            if lay is None:
-                continue
+        runs = {c: per[layout] for c, per in check.items() if layout in per}  # the controllers that ran it
+        for j, (c, lay) in enumerate(runs.items()):
             g = np.array(sorted(lay["by_image"]))
             rows = [lay["by_image"][k] for k in g]
             ax.errorbar(g - 0.3 + width * (j + 0.5), [r["mean"] for r in rows], yerr=[r["se"] for r in rows], fmt="o",
                         color=colors[c], capsize=3, label=f"{display_name(c)}: {lay['within']} of {lay['images']} "
                                                           f"within one SE")
             ax.axhline(lay["mean"], color=colors[c], ls="--", lw=1)
-        ax.set_xticks(np.arange(int(max(max(per[layout]["by_image"]) for per in check.values() if layout in per)) + 1))
+        ax.set_xticks(sorted({g for lay in runs.values() for g in lay["by_image"]}))
         ax.set_xlabel("image g under the world's symmetry group (0: the layout)")
         ax.set_ylabel("final normalised cost J(T) / J(0)")
-        ax.set_title(f"{suite} · {layout}: mean ± SE per image (n = "
-                     f"{n_range(r['n'] for per in check.values() if layout in per for r in per[layout]['by_image'].values())})",
-                     fontsize=10)
+        n = n_range(r["n"] for lay in runs.values() for r in lay["by_image"].values())
+        ax.set_title(f"{suite} · {layout}: mean ± SE per image (n = {n})", fontsize=10)
         ax.grid(True, axis="y", alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
