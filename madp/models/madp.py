@@ -227,8 +227,9 @@ class MADP(ActionStatsMixin):
     def sample(self, obs: Tensor, pos_m: Tensor, num_steps: int = DEFAULT_SAMPLING_STEPS, eta: float = 0.0,
                generator: torch.Generator | None = None, valid: Tensor | None = None,
                noise: Tensor | None = None, step_noise: Tensor | None = None,
-               clip_x0: float | None = None, sampler: str = DEFAULT_SAMPLER) -> Tensor:
-        """Centralized-masked sampling of the whole swarm -> ``actions_norm [B, N, 2]``.
+               clip_x0: float | None = None, sampler: str = DEFAULT_SAMPLER, copies: int = 1) -> Tensor:
+        """Centralized-masked sampling of the whole swarm -> ``actions_norm [B, N, 2]``
+        (``[B * copies, N, 2]``: see ``copies``).
 
         Args:
             num_steps: S sampler steps; sampler: ``"ddim"`` (paper Algorithm 1, η in [0, 1]) or
@@ -236,12 +237,18 @@ class MADP(ActionStatsMixin):
             generator: draws ``U_K`` and (η > 0) the per-step noise, in that order, each step
                 one ``[B, N, 2]`` draw; must be on the tensors' device.
             noise: optional ``U_K [B, N, 2]``; step_noise: optional ``[S, B, N, 2]``.
+            copies: C samples of every state: the CNN and the encoder run once per state, the
+                decoder on C copies of its memory; sample c of state b is row ``b * C + c`` of the
+                result (and of ``noise`` / ``step_noise``, ``[B * C, N, 2]`` each).
         Padding rows of the result are 0.
         """
         solver = self.make_sampler(sampler, num_steps, eta, clip_x0)
         b, n = pos_m.shape[:2]
         memory, mask = self.encode(obs, pos_m, valid)
-        shape = (b, n, self.config.action_dim)
+        if copies > 1:
+            memory, mask, pos_m = (t.repeat_interleave(copies, 0) for t in (memory, mask, pos_m))
+            valid = valid.repeat_interleave(copies, 0) if valid is not None else None
+        shape = (b * copies, n, self.config.action_dim)
         if noise is None:
             noise = torch.randn(shape, generator=generator, device=memory.device, dtype=memory.dtype)
 
@@ -261,7 +268,7 @@ class MADP(ActionStatsMixin):
                              valid: Tensor | None = None, noise: Tensor | None = None,
                              step_noise: Tensor | None = None, independent_noise: bool = False,
                              dedupe: bool = True, clip_x0: float | None = None,
-                             sampler: str = DEFAULT_SAMPLER) -> Tensor:
+                             sampler: str = DEFAULT_SAMPLER, copies: int = 1) -> Tensor:
         """Decentralized sampling: ``obs [N, 4, 32, 32]``, ``pos_m [N, 2]`` -> ``actions_norm [N, 2]``
         (a leading batch dimension ``[B, N, ...]`` is accepted too).
 
@@ -291,9 +298,16 @@ class MADP(ActionStatsMixin):
         distinct neighbourhood is computed once and every member reads its own action from it.
         Results equal ``dedupe=False`` up to float rounding; in a fully connected swarm this is N
         times less work.
+
+        ``copies`` C: C samples of every state, each with its own noise (``noise`` / ``step_noise``
+        ``[B * C, N, 2]``, sample c of state b in row ``b * C + c``, as is the result): tokens,
+        packing and encoder run once per state, the decoder on C copies of every packed row
+        (batched form only).
         """
         solver = self.make_sampler(sampler, num_steps, eta, clip_x0)
         single = pos_m.dim() == 2
+        if single and copies > 1:
+            raise ValueError("copies > 1 takes the batched form: obs [B, N, 4, S, S], pos_m [B, N, 2]")
         if single:
             obs, pos_m = obs.unsqueeze(0), pos_m.unsqueeze(0)
             valid = valid.unsqueeze(0) if valid is not None else None
@@ -313,10 +327,16 @@ class MADP(ActionStatsMixin):
         pack, pos_p = packed.pack, packed.pack(pos_m)
         mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius_m, packed.valid, packed.group)
         memory = self.encode_tokens(pack(tokens), pos_p, mask_p)
+        if copies > 1:  # packed row r, copy c -> row r * C + c
+            memory, pos_p, mask_p = (t.repeat_interleave(copies, 0) for t in (memory, pos_p, mask_p))
+
+        def pack_copies(t: Tensor) -> Tensor:  # [B * C, N, A] -> [R * C, row_len, A]
+            t = t.reshape(b, copies, *t.shape[1:])
+            return torch.stack([pack(t[:, c]) for c in range(copies)], 1).flatten(0, 1)
 
         dt = memory.dtype
-        swarm_shape = (b, n, self.config.action_dim)
-        packed_shape = (packed.rows, packed.row_len, self.config.action_dim)
+        swarm_shape = (b * copies, n, self.config.action_dim)
+        packed_shape = (packed.rows * copies, packed.row_len, self.config.action_dim)
         if independent_noise:
             x = torch.randn(packed_shape, generator=generator, device=dev, dtype=dt)
 
@@ -325,14 +345,15 @@ class MADP(ActionStatsMixin):
         else:
             if noise is None:
                 noise = torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt)
-            x = pack(noise.to(dt))
+            x = pack_copies(noise.to(dt))
 
             def draw(i: int) -> Tensor:
                 if step_noise is not None:
-                    return pack(step_noise[i].to(dt))
-                return pack(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
+                    return pack_copies(step_noise[i].to(dt))
+                return pack_copies(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
 
-        x = self._sample_loop(memory, pos_p, mask_p, x, solver, draw)
-        own = packed.own(x)  # each ego's own action
-        out = own.reshape(b, n, -1) * valid.unsqueeze(-1).to(x.dtype)
+        x = self._sample_loop(memory, pos_p, mask_p, x, solver, draw).unflatten(0, (packed.rows, copies))
+        own = torch.stack([packed.own(x[:, c]) for c in range(copies)], 1)  # each ego's own action [B * N, C, A]
+        out = own.reshape(b, n, copies, -1).transpose(1, 2).flatten(0, 1)  # [B * C, N, A]
+        out = out * valid.repeat_interleave(copies, 0).unsqueeze(-1).to(x.dtype)
         return out[0] if single else out

@@ -139,20 +139,21 @@ class MADPPolicy:
         return first.to(self.device), None if steps is None else steps.to(self.device)
 
     def _sample(self, obs: torch.Tensor, pos: torch.Tensor, noise: torch.Tensor, step_noise: torch.Tensor | None,
-                envs: list["CoverageEnv"]) -> torch.Tensor:
-        """Actions ``[B, N, 2]`` (m/s, float64 on the CPU) for ``obs [B, N, 4, S, S]``, ``pos [B, N, 2]``,
-        the states of ``envs`` (one per b, or one for all: several samples of one state)."""
+                envs: list["CoverageEnv"], copies: int) -> torch.Tensor:
+        """Actions ``[B * C, N, 2]`` (m/s, float64 on the CPU; sample c of state b in row b·C + c) for
+        ``obs [B, N, 4, S, S]``, ``pos [B, N, 2]``, the states of ``envs`` (one per b), C = ``copies``
+        samples of each: the model encodes every state once and denoises its C copies."""
         fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
         if self.frame == "d4":
             gs = [frame_element(self.seed if e.scenario.seed is None else e.scenario.seed, e.steps) for e in envs]
-            gs = gs * len(obs) if len(gs) == 1 else gs
             moved = [transform_state(o, x, g, float(envs[0].params.world_size)) for o, x, g in zip(obs, pos, gs)]
             obs, pos = torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved])
-        u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise)
+        u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise,
+               copies=copies)
         u = self.model.denormalize_actions(u).double().cpu()
         if self.frame == "world":
             return u
-        return torch.stack([inverse_actions(ub, g) for ub, g in zip(u, gs)])
+        return torch.stack([inverse_actions(ub, g) for ub, g in zip(u, np.repeat(gs, copies))])
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
@@ -164,13 +165,10 @@ class MADPPolicy:
         own = generator is None
         generator = generator or self.generator
         copies = num_samples * self.candidates
-        obs = torch.from_numpy(env.observations()).to(self.device)
-        pos = torch.from_numpy(env.positions_m.astype(np.float32)).to(self.device)
-        obs = obs[None].expand(copies, *obs.shape)
-        pos = pos[None].expand(copies, *pos.shape)
+        obs, pos = swarm_tensors([env], self.device)
         shape = (copies, env.num_robots, self.model.config.action_dim)
         noise, steps = self._noise(generator, shape, own and self.fixed_noise and num_samples == 1)
-        u = self._sample(obs, pos, noise, steps, [env]).numpy()
+        u = self._sample(obs, pos, noise, steps, [env], copies).numpy()
         return self._choose(np.stack([clip_speed(x, env.params.max_speed_mps) for x in u]), [env] * num_samples)
 
     def _choose(self, u: np.ndarray, envs: list[CoverageEnv]) -> np.ndarray:
@@ -195,11 +193,9 @@ class MADPPolicy:
         obs, pos = swarm_tensors(envs, self.device)
         k = self.candidates
         copies = [e for e in envs for _ in range(k)]
-        if k > 1:
-            obs, pos = obs.repeat_interleave(k, 0), pos.repeat_interleave(k, 0)
         shape = (k, pos.shape[1], self.model.config.action_dim)
         noise = [self._noise(g, shape, self.fixed_noise) for g in generators]
         first = torch.cat([n[0] for n in noise])
         steps = torch.cat([n[1] for n in noise], dim=1) if self.stochastic else None
-        u = self._sample(obs, pos, first, steps, copies).numpy()
+        u = self._sample(obs, pos, first, steps, envs, k).numpy()
         return self._choose(np.stack([clip_speed(x, e.params.max_speed_mps) for x, e in zip(u, copies)]), envs)

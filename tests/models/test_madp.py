@@ -243,6 +243,34 @@ def test_decentralized_dedupe_matches_per_robot_computation(tiny_madp, gen, samp
     assert torch.allclose(a, b, atol=1e-5)
 
 
+@pytest.mark.parametrize("decentralized", [True, False])
+@pytest.mark.parametrize("sampler,eta", [("ddim", 0.5), ("dpm++", 0.0)])
+def test_copies_encode_once_and_equal_sampling_repeated_states(tiny_madp, gen, decentralized, sampler, eta):
+    """``copies=C``: C samples of every state, row b·C + c, the same as sampling C repeated states with the
+    same noise (padding and several neighbourhoods included); the encoder sees only the B states."""
+    c = 3
+    obs = random_obs(2, 12, generator=gen)
+    pos = torch.stack([torch.cat([grid_positions(6, 100.0, 250.0, gen), grid_positions(6, 200.0, 900.0, gen)])
+                       for _ in range(2)])
+    valid = torch.ones(2, 12, dtype=torch.bool)
+    valid[1, -3:] = False
+    noise, step_noise = torch.randn(2 * c, 12, 2, generator=gen), torch.randn(4, 2 * c, 12, 2, generator=gen)
+    fn = tiny_madp.sample_decentralized if decentralized else tiny_madp.sample
+    kw = dict(num_steps=4, eta=eta, sampler=sampler, noise=noise, step_noise=step_noise if eta else None)
+    encoded = []  # rows through the encoder per call
+    hook = tiny_madp.encoder.register_forward_hook(lambda mod, args, out: encoded.append(out.shape[0]))
+    try:
+        once = fn(obs, pos, valid=valid, copies=c, **kw)
+        repeated = fn(obs.repeat_interleave(c, 0), pos.repeat_interleave(c, 0), valid=valid.repeat_interleave(c, 0),
+                      **kw)
+    finally:
+        hook.remove()
+    assert once.shape == (2 * c, 12, 2) and torch.allclose(once, repeated, atol=1e-5)
+    assert not torch.allclose(once[0], once[1])  # the copies differ by their noise
+    assert torch.equal(once[c:, -3:], torch.zeros(c, 3, 2))  # padding robots of every copy
+    assert encoded[1] >= c * encoded[0]  # repeated states are encoded C times; copies once
+
+
 @pytest.mark.parametrize("sampler", ["ddim", "dpm++"])
 def test_decentralized_equals_each_robot_running_the_model_on_its_own_neighbourhood(tiny_madp, gen, sampler):
     """The reference of the paper's decentralized execution, one robot at a time: robot i takes the
