@@ -240,7 +240,7 @@ def summarize(results_table: pa.Table | Mapping[str, Any], suite: str | None = N
     if suite == "cities":
         summary["best"] = best_per_group(summary)
     if suite == "symmetry":
-        summary["symmetry"] = symmetry_check(summary)
+        summary["symmetry"] = symmetry_check(summary, (group, env, controller, final))
     # MADP in the scale matrices: the decentralized policy when it ran, else the centralized-masked one.
     method = next((c for c in controllers if c in SAMPLING), None)
     if suite == "scale" and method is not None and \
@@ -280,7 +280,7 @@ def best_per_group(summary: Mapping[str, Any]) -> dict[str, Any]:
     return {"best": best, "counts": counts, "groups": len(best), "excluded": excluded}
 
 
-def symmetry_check(summary: Mapping[str, Any]) -> dict[str, Any]:
+def symmetry_check(summary: Mapping[str, Any], rows: tuple[np.ndarray, ...] | None = None) -> dict[str, Any]:
     """Whether each controller costs the same on every image of a launch layout (the ``symmetry``
     suite: groups ``<layout>_d4-<g>``, the same environments moved by the world's rotations and
     reflections, which leave the task unchanged).
@@ -288,7 +288,16 @@ def symmetry_check(summary: Mapping[str, Any]) -> dict[str, Any]:
     For every controller and layout: ``mean``, the mean over the layout's images of their mean final
     costs, and per image ``g``: ``mean``, ``se``, ``n``, ``deviation`` (image mean − layout mean) and
     ``within_se`` (|deviation| ≤ the image's SE); ``within`` counts those images, ``images`` how
-    many ran. Returns ``{controller: {layout: {...}}}``; groups of other names are ignored."""
+    many ran.
+
+    With ``rows`` (``group, env, controller, final_cost`` per results row), the images are also
+    compared environment by environment: per image ``paired`` = the mean over the environments that
+    ran on every image of (its cost − the mean of the other images' costs), with ``se`` and ``z`` =
+    mean / se; per layout ``max_abs_z`` and ``familywise_p``, the chance that an exactly symmetric
+    policy (every image's costs the same in distribution, the environments' differences cancelled by
+    the pairing) shows some image at least that far out: Šidák over the images of the two-sided
+    Student-t p-value of the largest |z|. Returns ``{controller: {layout: {...}}}``; groups of other
+    names are ignored."""
     out: dict[str, Any] = {}
     for c in summary["controllers"]:
         layouts: dict[str, dict[int, Mapping[str, Any]]] = {}
@@ -298,15 +307,44 @@ def symmetry_check(summary: Mapping[str, Any]) -> dict[str, Any]:
                 layouts.setdefault(m["layout"], {})[int(m["g"])] = st
         for layout, images in layouts.items():
             mean = float(np.mean([st["mean"] for st in images.values()]))
-            rows = {}
+            by_image = {}
             for g in sorted(images):
                 st = images[g]
                 dev = float(st["mean"]) - mean
-                rows[g] = {"mean": float(st["mean"]), "se": float(st["se"]), "n": int(st["n"]), "deviation": dev,
-                           "within_se": bool(finite(st["se"]) and abs(dev) <= st["se"])}
-            out.setdefault(c, {})[layout] = {"mean": mean, "by_image": rows, "images": len(rows),
-                                             "within": sum(r["within_se"] for r in rows.values())}
+                by_image[g] = {"mean": float(st["mean"]), "se": float(st["se"]), "n": int(st["n"]), "deviation": dev,
+                               "within_se": bool(finite(st["se"]) and abs(dev) <= st["se"])}
+            lay = {"mean": mean, "by_image": by_image, "images": len(by_image),
+                   "within": sum(r["within_se"] for r in by_image.values())}
+            if rows is not None:
+                lay.update(_paired_images(rows, c, layout, sorted(images), by_image))
+            out.setdefault(c, {})[layout] = lay
     return out
+
+
+def _paired_images(rows: tuple[np.ndarray, ...], controller: str, layout: str, images: list[int],
+                   by_image: dict[int, dict[str, Any]]) -> dict[str, Any]:
+    """:func:`symmetry_check`'s environment-by-environment comparison of one controller's images of one
+    layout: fills ``by_image[g]["paired"]``, returns the layout's ``max_abs_z`` and ``familywise_p``."""
+    group, env, controller_col, final = rows
+    envs = np.unique(env)
+    cube = np.full((len(envs), len(images)), np.nan)  # [env, image]
+    for j, g in enumerate(images):
+        pick = (controller_col == controller) & (group == f"{layout}_d4-{g}")
+        cube[np.searchsorted(envs, env[pick]), j] = final[pick]
+    cube = cube[np.isfinite(cube).all(1)]
+    n, k = cube.shape
+    if n < 2 or k < 2:
+        return {"max_abs_z": math.nan, "familywise_p": math.nan}
+    others = (cube.sum(1, keepdims=True) - cube) / (k - 1)
+    d = cube - others  # [env, image]
+    se = d.std(0, ddof=1) / math.sqrt(n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(se > 0, d.mean(0) / se, np.where(d.mean(0) == 0, 0.0, np.inf))
+    for j, g in enumerate(images):
+        by_image[g]["paired"] = {"diff": float(d[:, j].mean()), "se": float(se[j]), "z": float(z[j]), "n": int(n)}
+    zmax = float(np.abs(z).max())
+    p_one = float(2 * stats.t.sf(zmax, df=n - 1))
+    return {"max_abs_z": zmax, "familywise_p": float(1 - (1 - p_one) ** k)}
 
 
 def cost_curve_bands(controller: np.ndarray, env_key: np.ndarray, step: np.ndarray, cost: np.ndarray,

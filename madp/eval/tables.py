@@ -123,15 +123,18 @@ def symmetry_markdown(check: Mapping[str, Any]) -> str:
     one SE of it."""
     images = sorted({g for layouts in check.values() for lay in layouts.values() for g in lay["by_image"]})
     lines = ["Symmetry: each image's mean final cost (its deviation from the layout's mean over the images); "
-             "✓ where the deviation is within the image's SE.", ""]
-    header = ["controller", "layout", "mean"] + [f"image {g}" for g in images] + ["within one SE"]
+             "✓ where the deviation is within the image's SE. Paired: each image against the mean of the "
+             "others, environment by environment: the largest |z| and the chance an exactly symmetric policy "
+             "shows one at least that large (family-wise p).", ""]
+    header = ["controller", "layout", "mean"] + [f"image {g}" for g in images] + ["within one SE", "paired max |z| (p)"]
     lines += [_md_row(header), _md_row(["---"] * len(header))]
     for c, layouts in check.items():
         for layout, lay in layouts.items():
             cells = [f"{r['mean']:.3f} ({r['deviation']:+.3f}){' ✓' if r['within_se'] else ''}"
                      if (r := lay["by_image"].get(g)) else "—" for g in images]
+            paired = f"{lay['max_abs_z']:.2f} ({lay['familywise_p']:.2f})" if "max_abs_z" in lay else "—"
             lines.append(_md_row([display_name(c), layout, f"{lay['mean']:.3f}"] + cells
-                                 + [f"{lay['within']} of {lay['images']}"]))
+                                 + [f"{lay['within']} of {lay['images']}", paired]))
     return "\n".join(lines)
 
 

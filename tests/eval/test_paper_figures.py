@@ -15,6 +15,7 @@ from madp.eval.plots import BEST_MARKER, cities_heatmap_figure, color_map, cost_
 from madp.eval.report import write_report
 from madp.eval.stats import best_per_group, cost_curve_bands, scale_improvement_matrix, summarize
 from madp.eval.tables import markdown_table
+from scipy import stats as scipy_stats
 from tests.eval.test_report import columns, make_suite, strict_json, write_suite
 
 CITIES = ("Alameda", "Boston", "Cupertino", "Dallas", "El Centro", "Fremont", "Honolulu")
@@ -149,13 +150,30 @@ def test_symmetry_check_against_pandas_and_in_the_report(tmp_path):
             assert r["se"] == pytest.approx(se[g], rel=1e-9)
             assert r["within_se"] == (abs(row["mean"] - layout_mean) <= se[g])
         assert got["within"] == int((np.abs(per["mean"] - layout_mean) <= se).sum()) and got["images"] == 8
+        cube = x.pivot(index="env", columns="image", values="final_cost")  # env by env: image g vs the others
+        d = cube.sub((cube.sum(axis=1).to_numpy()[:, None] - cube) / 7)
+        for g in range(8):
+            p = got["by_image"][g]["paired"]
+            assert p["diff"] == pytest.approx(d[g].mean(), abs=1e-12) and p["n"] == 4
+            assert p["se"] == pytest.approx(d[g].std() / 2, rel=1e-9)
+            assert p["z"] == pytest.approx(d[g].mean() / (d[g].std() / 2), rel=1e-9)
+        zmax = (d.mean() / (d.std() / 2)).abs().max()
+        assert got["max_abs_z"] == pytest.approx(zmax, rel=1e-9)
+        assert got["familywise_p"] == pytest.approx(1 - (1 - 2 * scipy_stats.t.sf(zmax, 3)) ** 8, rel=1e-9)
     # some images in, some out: the synthetic costs are noise, so the test can tell the two apart
     flags = [r["within_se"] for per in check.values() for lay in per.values() for r in lay["by_image"].values()]
     assert any(flags) and not all(flags)
     # a policy that costs the same on every image is within on all of them
     cost = df.final_cost.to_numpy() * 0 + df.env.to_numpy() * 0.1 + 0.2
     flat = results.set_column(results.column_names.index("final_cost"), "final_cost", pa.array(cost))
-    assert all(lay["within"] == 8 for per in summarize(flat, "symmetry")["symmetry"].values() for lay in per.values())
+    flat_check = summarize(flat, "symmetry")["symmetry"]
+    assert all(lay["within"] == 8 for per in flat_check.values() for lay in per.values())
+    # one image costing more in every environment stands out paired, although within its SE unpaired
+    shifted = cost + np.where(df.group.to_numpy() == "line_d4-3", 0.01, 0.0) + df.env.to_numpy() * 0.05
+    shifted = results.set_column(results.column_names.index("final_cost"), "final_cost", pa.array(shifted))
+    line = summarize(shifted, "symmetry")["symmetry"]["madp"]["line"]
+    assert line["by_image"][3]["within_se"] and line["by_image"][3]["paired"]["z"] > 1e6
+    assert line["familywise_p"] < 1e-6
     assert "symmetry" not in summarize(make_suite("launch", {"line": {"launch": "line"}}, n_envs=2)[1], "launch")
 
     files = write_report(write_suite(tmp_path / "symmetry", curves, results), "symmetry")
