@@ -24,7 +24,8 @@ SAMPLER_NAMES = {"ddim": "DDIM", "dpm++": "DPM-Solver++(2M)"}
 SELECT_NAMES = {"oracle": "the best of {k} joint samples by the true J after the step (ORACLE: an upper bound, not a "
                           "controller robots could run)",
                 "cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map",
-                "mppi": "each robot the MPPI mean of its {k} samples weighted by its own cell's cost"}
+                "mppi": "each robot the MPPI mean of its {k} samples weighted by its own cell's cost",
+                "medoid": "each robot the most typical of its {k} samples (least summed distance to the others)"}
 
 
 def _cell(st: Mapping[str, Any] | None) -> str:

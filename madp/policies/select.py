@@ -15,6 +15,8 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
 * ``mppi``: each robot takes the mean of its candidates weighted by ``exp(-c_k / λ)`` with c_k the
   same local cell cost (:func:`mppi_weights`), λ = :data:`MPPI_TEMPERATURE` × the standard deviation
   of its K costs.
+* ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
+  :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
 The local rules read only what a robot knows: :func:`local_views` collects, per robot, its own map's
 window, its own position and its neighbours' positions; :func:`local_cell_costs` and
@@ -34,7 +36,7 @@ from madp.sim.params import SimParams
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid")
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
 #: MPPI's λ in units of the standard deviation of a robot's K local costs.
@@ -50,7 +52,7 @@ def check_selection(select: str, candidates: int) -> None:
         raise SettingError("candidates", f"expected a whole number of samples per robot >= 1, got {candidates!r}")
     if select == "none" and candidates > 1:
         raise SettingError("select/candidates", f"{candidates} candidates per robot need a rule to choose among "
-                           "them (oracle, cell or mppi), got select none")
+                           "them (oracle, cell, mppi or medoid), got select none")
     if select != "none" and candidates == 1:
         raise SettingError("select/candidates", f"select {select} chooses among several samples per robot: "
                            "expected candidates > 1, got 1")
@@ -132,15 +134,24 @@ def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np
     return w / w.sum(axis=1, keepdims=True)
 
 
+def medoid_index(candidates_mps: np.ndarray) -> np.ndarray:
+    """Per row of ``candidates_mps [R, K, 2]``, the index of the candidate of least summed Euclidean
+    distance to the row's K candidates: ``[R]`` (ties: the lowest index)."""
+    diff = candidates_mps[:, :, None] - candidates_mps[:, None]  # [R, K, K, 2]
+    return np.sqrt((diff ** 2).sum(-1)).sum(2).argmin(1)
+
+
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) -> np.ndarray:
     """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
     (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
-    ``mppi`` only each robot's :func:`local_views`."""
+    ``mppi`` only each robot's :func:`local_views`; ``medoid`` only each robot's own candidates."""
     if select == "none":
         return candidates_mps[0]
     if select == "oracle":
         return candidates_mps[int(np.argmin(oracle_costs(env, candidates_mps)))]
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
+    if select == "medoid":
+        return np.take_along_axis(per_robot, medoid_index(per_robot)[:, None, None], 1)[:, 0]
     costs = local_cell_costs(local_views(env), per_robot, env.params)
     if select == "cell":
         return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]

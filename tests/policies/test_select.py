@@ -17,7 +17,7 @@ import madp.policies.select as select_mod
 from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings, noise_generator
-from madp.policies.select import local_cell_costs, local_views, mppi_weights, oracle_costs, select_actions
+from madp.policies.select import local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
 from madp.policies.swarm import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
 from tests.conftest import one_torch_thread
@@ -159,6 +159,24 @@ def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
     assert np.abs(cands.mean(0) - select_actions("cell", env, cands)).max() > 0.1
 
 
+def test_medoid_keeps_each_robots_most_typical_candidate():
+    """Robot by robot, the candidate of least summed distance to its others, from its own candidates alone."""
+    env = CoverageEnv(_scenario(ROBOTS))
+    cands = _candidates(4, 5)  # [K, N, 2]
+    chosen = select_actions("medoid", env, cands)
+    for i in range(cands.shape[1]):  # a loop here, vectorised in the code
+        sums = [sum(np.hypot(*(cands[k, i] - cands[j, i])) for j in range(len(cands))) for k in range(len(cands))]
+        np.testing.assert_array_equal(chosen[i], cands[int(np.argmin(sums)), i])
+    # an outlier never wins; three equal candidates and one far away: one of the three
+    one = np.array([[[1.0, 0.0]], [[1.0, 0.0]], [[9.0, 9.0]], [[1.0, 0.0]]])
+    np.testing.assert_array_equal(medoid_index(one.transpose(1, 0, 2)), [0])
+    moved = cands.copy()
+    moved[:, 0] += 3.0  # robot 0's choice moves with its own candidates; the others' do not change
+    again = select_actions("medoid", CoverageEnv(_scenario(ROBOTS)), moved)
+    np.testing.assert_array_equal(again[1:], chosen[1:])
+    np.testing.assert_array_equal(again[0], chosen[0] + 3.0)
+
+
 @pytest.mark.parametrize("mode", ["decentralized", "centralized"])
 def test_one_candidate_without_selection_is_the_sampling_unchanged(model, mode):
     """K = 1, select none, the world frame: the model's own sample with the generator's first draw, bit for bit."""
@@ -191,9 +209,9 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell or mppi), got select none"),
+                                    "among them (oracle, cell, mppi or medoid), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
-                                                        "mppi, got 'vote'"),
+                                                        "mppi, medoid, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     assert assert_one_line(*cli(*args, "--out", tmp_path / "o")) == line
