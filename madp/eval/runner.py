@@ -370,8 +370,11 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                 bar.advance(task, n)
             remove_temps(suite_dir)  # what a worker killed mid-job left (Ray ran its task again)
         elif workers == 1:
-            for c, es, rec in tasks:
-                bar.advance(task, run_task(cfg, c, es, suite_dir, rec, filmed))
+            from madp.models.bench import _threads
+
+            with _threads(1):  # one torch thread, as in every pool worker: two evaluations side by side
+                for c, es, rec in tasks:  # do not fight over the cores, and --workers changes no bit
+                    bar.advance(task, run_task(cfg, c, es, suite_dir, rec, filmed))
         else:
             os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             with mp.get_context("spawn").Pool(workers, initializer=die_with_parent, initargs=(os.getpid(),)) as pool:
