@@ -3,9 +3,9 @@
 # Run from the repository root after `bash scripts/quickstart.sh` (or any install into .venv).
 # Round 0 trains on the expert data; scripts/train_dagger.sh then runs the expert-relabelling rounds
 # (MADP: 2, LPAC-K3: 1), scripts/train_rounds_3to5.sh MADP's rounds 3-5 (narrow features, 128-robot
-# swarms), scripts/train_round6.sh round 6 (packed starts, d4 augmentation) and scripts/train_round7.sh
-# round 7 (narrow features and 128-robot swarms back in the mix); the last round of each is shipped.
-# About 8 h on 2 cores end to end.
+# swarms) and scripts/train_rounds_6to8.sh rounds 6-8 (packed starts with d4 augmentation, then narrow
+# features and 128-robot swarms back in the mix); the last round of each is shipped.
+# About 9 h on 2 cores end to end.
 # Results do not depend on running the two trainings side by side or one after the other.
 set -euo pipefail
 DATA=${DATA:-/work/data100k}
@@ -21,10 +21,9 @@ DATA=$DATA MADP0=runs/madp-cpu/checkpoints/best/policy.safetensors LPAC0=runs/lp
   MADP_ROUNDS=2 LPAC_ROUNDS=1 bash scripts/train_dagger.sh
 mkdir -p madp/checkpoints
 DATA=$DATA MADP2=runs/madp-r2/checkpoints/best/policy.safetensors bash scripts/train_rounds_3to5.sh
-# Round 6: relabelled rollouts from packed launches, --augment d4 (README, Exploration from packed starts)
-R5=runs/madp-r5/checkpoints/best/policy.safetensors OUT=runs/madp-r6 bash scripts/train_round6.sh
-# Round 7: narrow features and 128-robot swarms back in the mix (README, Policy quality)
-R6=runs/madp-r6/checkpoints/best/policy.safetensors OUT=runs/madp-r7 bash scripts/train_round7.sh
-cp runs/madp-r7/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
+# Rounds 6-8: packed launches and --augment d4, then narrow features and 128-robot swarms (README,
+# Exploration from packed starts and Policy quality)
+R5=runs/madp-r5/checkpoints/best/policy.safetensors bash scripts/train_rounds_6to8.sh
+cp runs/madp-r8/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
 cp runs/lpac-r1/checkpoints/best/policy.safetensors madp/checkpoints/lpac-cpu.safetensors
-.venv/bin/python scripts/provenance.py runs/madp-r7 runs/lpac-r1
+.venv/bin/python scripts/provenance.py runs/madp-r8 runs/lpac-r1
