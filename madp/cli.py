@@ -30,7 +30,7 @@ scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Sc
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 # MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option("none", help="MADP: keep one of --candidates K samples per robot: none | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample).")
+SELECT = typer.Option("none", help="MADP: keep one of --candidates K samples per robot: none | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
 CANDIDATES = typer.Option(1, help="MADP: samples per robot per control step, drawn in one batch (K > 1 needs --select).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
@@ -203,6 +203,7 @@ def eval_cmd(
     ctx: typer.Context,
     suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
+    groups: Optional[str] = typer.Option(None, help="Run only these groups of the suite, comma-separated (e.g. N32_F128 of scale, line of launch); default: all."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint); KIND:NAME=PATH adds a learned controller with its own checkpoint, e.g. madp:r4=runs/r4/policy.safetensors (shown as madp:r4)."),
     lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
@@ -241,7 +242,7 @@ def eval_cmd(
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
-                     named=tuple(named.items()))
+                     named=tuple(named.items()), groups=tuple(g.strip() for g in groups.split(",")) if groups else ())
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)

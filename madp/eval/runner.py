@@ -42,7 +42,7 @@ from madp.policies import SamplingSettings
 from madp.sim import CoverageEnv
 from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, act_alone, run
 
-from .suites import EnvSpec, suite_envs
+from .suites import EnvSpec, only_groups, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
@@ -68,6 +68,7 @@ class EvalConfig:
     record_every: int = 5
     record_samples: int = 4
     device: str = "cpu"  # where the learned controllers' models run ("cpu", "cuda", "cuda:I")
+    groups: tuple[str, ...] = ()  # run only these groups of the suite (empty: all)
 
     def __post_init__(self) -> None:
         if self.ray is not None:
@@ -304,7 +305,7 @@ def _read_config(cfg_file: Path) -> dict | None:
 
 def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bool = True) -> dict:
     """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
-    envs = suite_envs(suite, cfg.num_envs, cfg.cities)
+    envs = only_groups(suite_envs(suite, cfg.num_envs, cfg.cities), cfg.groups)
     suite_dir = Path(cfg.out) / suite
     with locked_dir(suite_dir):
         return _run_suite_locked(cfg, suite, envs, suite_dir, overwrite, progress)

@@ -97,6 +97,19 @@ def suite_names(suite: str) -> list[str]:
     return names
 
 
+def only_groups(envs: list[EnvSpec], groups: tuple[str, ...]) -> list[EnvSpec]:
+    """The environments of ``envs`` in ``groups`` (all of them when ``groups`` is empty), in suite order.
+    A name that is not a group of the suite is a one-line error naming the suite's groups."""
+    if not groups:
+        return envs
+    known = list(dict.fromkeys(e.group for e in envs))
+    unknown = [g for g in groups if g not in known]
+    if unknown:
+        suite = envs[0].suite if envs else "?"
+        raise SettingError("groups", f"{', '.join(unknown)}: not a group of suite {suite!r}; expected some of {known}")
+    return [e for e in envs if e.group in groups]
+
+
 def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = None) -> list[EnvSpec]:
     """The environments of a suite, in a fixed order."""
     if num_envs < 1:

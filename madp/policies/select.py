@@ -15,13 +15,17 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
 * ``mppi``: each robot takes the mean of its candidates weighted by ``exp(-c_k / λ)`` with c_k the
   same local cell cost (:func:`mppi_weights`), λ = :data:`MPPI_TEMPERATURE` × the standard deviation
   of its K costs.
+* ``oracle_cell`` — **an upper bound for** ``cell``, **not a controller robots could run**: the
+  ``cell`` rule with the true world map in each robot's window in place of its own sensed map. Its
+  gap to ``cell`` is what a perfect prediction of unsensed importance would give that rule; its gap
+  to ``oracle`` what choosing robot by robot, one step ahead, loses against choosing joint samples.
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
 The local rules read only what a robot knows: :func:`local_views` collects, per robot, its own map's
 window, its own position and its neighbours' positions; :func:`local_cell_costs` and
 :func:`mppi_weights` take nothing else, and row i of their result depends on row i of their inputs
-alone. Only :func:`oracle_costs` takes the environment.
+alone. Only :func:`oracle_costs` and ``oracle_cell``'s true-map views read the world map.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from madp.sim.params import SimParams
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi", "medoid")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "oracle_cell")
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
 #: MPPI's λ in units of the standard deviation of a robot's K local costs.
@@ -52,7 +56,7 @@ def check_selection(select: str, candidates: int) -> None:
         raise SettingError("candidates", f"expected a whole number of samples per robot >= 1, got {candidates!r}")
     if select == "none" and candidates > 1:
         raise SettingError("select/candidates", f"{candidates} candidates per robot need a rule to choose among "
-                           "them (oracle, cell, mppi or medoid), got select none")
+                           "them (" + ", ".join(SELECTS[1:]) + "), got select none")
     if select != "none" and candidates == 1:
         raise SettingError("select/candidates", f"select {select} chooses among several samples per robot: "
                            "expected candidates > 1, got 1")
@@ -85,13 +89,18 @@ class LocalViews:
     valid: np.ndarray
 
 
-def local_views(env: CoverageEnv) -> LocalViews:
+def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
     """Every robot's :class:`LocalViews` row: its own map (``env.maps``, what it sensed) in its
-    256 m window (zero outside the world), its position, and its neighbours (``env.neighbours()``)."""
+    256 m window (zero outside the world), its position, and its neighbours (``env.neighbours()``).
+    ``true_map``: the world map in the same window instead (``oracle_cell``: not what a robot knows)."""
     s = env.params.local_map_size
     g = s // GRID_M
     cells = env.cells()
-    own = env.local_maps()  # [N, S, S] float32, robot n's own map around its cell
+    if true_map:  # [N, S, S] float32, the world map around each robot's cell
+        m, starts = env.maps, cells - s // 2 + env.maps.pad
+        own = np.stack([m.world_padded[x0:x0 + s, y0:y0 + s] for x0, y0 in starts])
+    else:
+        own = env.local_maps()  # [N, S, S] float32, robot n's own map around its cell
     weights = own.reshape(len(own), g, GRID_M, s).sum(2, dtype=np.float64).reshape(len(own), g, g, GRID_M).sum(3)
     nbr = env.neighbours()
     m = max(int(nbr.sum(1).max()), 1)
@@ -144,7 +153,8 @@ def medoid_index(candidates_mps: np.ndarray) -> np.ndarray:
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) -> np.ndarray:
     """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
     (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
-    ``mppi`` only each robot's :func:`local_views`; ``medoid`` only each robot's own candidates."""
+    ``mppi`` only each robot's :func:`local_views`; ``medoid`` only each robot's own candidates;
+    ``oracle_cell`` the true-map views."""
     if select == "none":
         return candidates_mps[0]
     if select == "oracle":
@@ -152,8 +162,8 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) ->
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if select == "medoid":
         return np.take_along_axis(per_robot, medoid_index(per_robot)[:, None, None], 1)[:, 0]
-    costs = local_cell_costs(local_views(env), per_robot, env.params)
-    if select == "cell":
+    costs = local_cell_costs(local_views(env, true_map=select == "oracle_cell"), per_robot, env.params)
+    if select in ("cell", "oracle_cell"):
         return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
     if select == "mppi":
         return np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)

@@ -124,6 +124,22 @@ def test_eval_cli_errors_are_one_line(tmp_path, checkpoints):
     assert_one_line(*run("--controllers", "dcvt,foo"), "foo")
     assert_one_line(*run("--controllers", "dcvt", "--sampler", "euler"), "--sampler")
     assert_one_line(*run("--controllers", "dcvt", "--sampler", "dpm++", "--eta", "0.5"), "deterministic")
+    assert_one_line(*run("--suite", "scale", "--groups", "N32_F999", "--controllers", "dcvt"), "N32_F999")
+
+
+def test_groups_run_a_part_of_the_suite_on_the_same_environments(tmp_path):
+    """--groups runs the named groups' environments, exactly as the whole suite runs them."""
+    whole = EvalConfig(suite="launch", out=str(tmp_path / "whole"), num_envs=2, steps=4, workers=1, controllers=("dcvt",))
+    part = EvalConfig(**{**whole.__dict__, "out": str(tmp_path / "part"), "groups": ("line",)})
+    run_suite(whole, "launch", progress=False)
+    run_suite(part, "launch", progress=False)
+    a = pq.read_table(tmp_path / "whole" / "launch" / "results.parquet").to_pandas()
+    b = pq.read_table(tmp_path / "part" / "launch" / "results.parquet").to_pandas()
+    assert list(b.group) == ["line", "line"]
+    line = a[a.group == "line"].reset_index(drop=True)
+    assert list(b.scenario_seed) == list(line.scenario_seed) and list(b.final_cost) == list(line.final_cost)
+    with pytest.raises(ValueError, match="other settings \\(env_keys"):  # another part: other environments
+        run_suite(EvalConfig(**{**part.__dict__, "groups": ("square",)}), "launch", progress=False)
 
 
 @pytest.mark.parametrize("controller,sampler,eta,fixed", [("lpac", "ddim", 0.0, False), ("madp_central", "ddim", 0.5, False),

@@ -139,6 +139,32 @@ def test_the_cell_rule_reads_only_what_a_robot_knows():
     assert np.abs(r0(CoverageEnv(_scenario(ROBOTS), world_map=seen_world)) - r0(base)).max() > 1e-6 * r0(base).max()
 
 
+def test_oracle_cell_is_the_cell_rule_on_the_true_map():
+    """``oracle_cell`` reads the world map in each robot's window: it sees importance the robot has
+    not sensed (which ``cell`` does not), and equals ``cell`` where the robot has sensed its window."""
+    base = CoverageEnv(_scenario(ROBOTS))
+    cands = _candidates(2, 5)
+    views = local_views(base, true_map=True)
+    cx, cy = base.cells()[0]
+    world = base.world_map.astype(np.float64)
+    g = select_mod.GRID_M
+    np.testing.assert_allclose(views.weights[0, 1, 2], world[cx - 128 + g:cx - 128 + 2 * g, cy - 128 + 2 * g:cy - 128 + 3 * g].sum(),
+                               rtol=1e-6)
+    sensed = base.maps.robot_map(0) > 0
+    changed = base.world_map.copy()
+    changed[~sensed] += 0.3
+    other = CoverageEnv(_scenario(ROBOTS), world_map=changed)
+    r0 = lambda env, true: local_cell_costs(local_views(env, true), cands.transpose(1, 0, 2), env.params)[0]  # noqa: E731
+    np.testing.assert_array_equal(r0(other, False), r0(base, False))
+    assert np.abs(r0(other, True) - r0(base, True)).min() > 0  # it sees the unsensed change
+    full = CoverageEnv(_scenario(ROBOTS))
+    full.maps.maps_padded[:] = full.maps.world_padded  # every robot has sensed the whole world
+    np.testing.assert_array_equal(r0(full, True), r0(full, False))
+    np.testing.assert_array_equal(select_actions("oracle_cell", base, cands),
+                                  np.take_along_axis(cands.transpose(1, 0, 2), local_cell_costs(
+                                      views, cands.transpose(1, 0, 2), base.params).argmin(1)[:, None, None], 1)[:, 0])
+
+
 def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
     env = CoverageEnv(_scenario(ROBOTS))
     cands = _candidates(3, 5)
@@ -209,9 +235,9 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell, mppi or medoid), got select none"),
+                                    "among them (oracle, cell, mppi, medoid, oracle_cell), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
-                                                        "mppi, medoid, got 'vote'"),
+                                                        "mppi, medoid, oracle_cell, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     assert assert_one_line(*cli(*args, "--out", tmp_path / "o")) == line
