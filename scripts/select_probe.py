@@ -6,7 +6,8 @@ and K candidates, with the local cost of :mod:`madp.policies.select` replaced by
   ``sum_q w_q min(|q − y|², min_j |q − x_j|²)``, instead of its own cell's cost (the two rank
   candidates differently by what the neighbours would pay for the points the robot takes);
 * ``--map true``: each robot's window of the TRUE world map instead of its own sensed map (what
-  no robot knows: it tells whether the rule or the robot's information is the limit).
+  no robot knows: it tells whether the rule or the robot's information is the limit; with
+  ``--cost cell`` this is ``madp eval --select oracle_cell``).
 
     python scripts/select_probe.py --cost window --map true --out runs/select-probe/window-true
 """
@@ -38,14 +39,9 @@ def window_costs(views: select.LocalViews, actions_mps: np.ndarray, params) -> n
 
 
 def true_map_views(env) -> select.LocalViews:
-    """:func:`madp.policies.select.local_views` with each window read from the world map."""
-    v = select_local_views(env)
-    s, grid = env.params.local_map_size, select.GRID_M
-    starts = env.cells() - s // 2 + env.maps.pad
-    win = np.stack([env.maps.world_padded[x:x + s, y:y + s] for x, y in starts])
-    g = s // grid
-    weights = win.reshape(len(win), g, grid, s).sum(2, dtype=np.float64).reshape(len(win), g, g, grid).sum(3)
-    return select.LocalViews(v.start_m, v.offset_m, weights, v.origin_m, v.neighbours_m, v.valid)
+    """:func:`madp.policies.select.local_views` with each window read from the world map (the views
+    ``--select oracle_cell`` uses)."""
+    return select_local_views(env, true_map=True)
 
 
 select_local_views = select.local_views

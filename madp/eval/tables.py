@@ -26,6 +26,8 @@ SELECT_NAMES = {"oracle": "the best of {k} joint samples by the true J after the
                 "cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map",
                 "mppi": "each robot the MPPI mean of its {k} samples weighted by its own cell's cost",
                 "medoid": "each robot the most typical of its {k} samples (least summed distance to the others)",
+                "explore": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map, its "
+                           "unexplored blocks given the mean importance of its explored ones",
                 "oracle_cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on the TRUE map "
                                "(ORACLE: an upper bound for the cell rule, not a controller robots could run)"}
 

@@ -19,6 +19,11 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   ``cell`` rule with the true world map in each robot's window in place of its own sensed map. Its
   gap to ``cell`` is what a perfect prediction of unsensed importance would give that rule; its gap
   to ``oracle`` what choosing robot by robot, one step ahead, loses against choosing joint samples.
+* ``explore``: ``cell`` on the robot's own map with a prior on what it has not looked at: every
+  block of its window it has not explored (:attr:`madp.sim.robot_maps.RobotMaps.explored`, what its
+  own sensor has covered) counts as holding the mean importance per cell of the blocks of its window
+  it has explored (any equal mass when those hold none: the ranking is then pure exploration).
+  The cell's cost then also falls by moving toward the unexplored part of the cell.
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
@@ -30,17 +35,18 @@ alone. Only :func:`oracle_costs` and ``oracle_cell``'s true-map views read the w
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from madp.errors import SettingError
 from madp.sim.env import CoverageEnv, move
 from madp.sim.params import SimParams
+from madp.sim.robot_maps import EXPLORED_BLOCK_M
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "oracle_cell")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
 #: MPPI's λ in units of the standard deviation of a robot's K local costs.
@@ -110,6 +116,25 @@ def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
                       env.positions_m[order], valid)
 
 
+def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
+    """``views`` with each robot's unexplored blocks of its window (inside the world) given the mean
+    mass of its explored ones (1 when those hold none): the weights ``explore`` uses. Reads the
+    robot's own explored map, sampled at each window block's centre."""
+    g = views.weights.shape[1]
+    pad, w = env.maps.pad, env.params.world_size
+    centre = views.origin_m.astype(np.int64)[:, :, None] + pad + GRID_M * np.arange(g) + GRID_M // 2  # [N, 2, G], padded
+    idx = centre // EXPLORED_BLOCK_M
+    n = np.arange(len(centre))[:, None, None]
+    explored = env.maps.explored[n, idx[:, 0, :, None], idx[:, 1, None, :]]  # [N, G, G]
+    inside = ((centre >= pad) & (centre < pad + w))
+    inside = inside[:, 0, :, None] & inside[:, 1, None, :]
+    seen = explored & inside
+    mass = np.where(seen, views.weights, 0.0).sum((1, 2)) / np.maximum(seen.sum((1, 2)), 1)
+    mass = np.where(mass > 0, mass, 1.0)
+    prior = np.where(inside & ~explored, mass[:, None, None], 0.0)
+    return replace(views, weights=views.weights + prior)
+
+
 def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimParams) -> np.ndarray:
     """Each robot's local cell cost of each of its candidates ``actions_mps [R, K, 2]`` (m/s): ``[R, K]``.
 
@@ -154,7 +179,7 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) ->
     """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
     (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
     ``mppi`` only each robot's :func:`local_views`; ``medoid`` only each robot's own candidates;
-    ``oracle_cell`` the true-map views."""
+    ``explore`` those and its own explored map; ``oracle_cell`` the true-map views."""
     if select == "none":
         return candidates_mps[0]
     if select == "oracle":
@@ -162,8 +187,11 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) ->
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if select == "medoid":
         return np.take_along_axis(per_robot, medoid_index(per_robot)[:, None, None], 1)[:, 0]
-    costs = local_cell_costs(local_views(env, true_map=select == "oracle_cell"), per_robot, env.params)
-    if select in ("cell", "oracle_cell"):
+    views = local_views(env, true_map=select == "oracle_cell")
+    if select == "explore":
+        views = explore_prior(env, views)
+    costs = local_cell_costs(views, per_robot, env.params)
+    if select in ("cell", "explore", "oracle_cell"):
         return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
     if select == "mppi":
         return np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)

@@ -20,6 +20,9 @@ from . import kernels
 from .kernels import BLOCK  # rows per block of the block prefix sums
 from .observations import resize_windows
 
+#: Side (m) of the blocks of a robot's explored map (:attr:`RobotMaps.explored`).
+EXPLORED_BLOCK_M = 4
+
 
 def robot_cells(positions_m: np.ndarray) -> np.ndarray:
     """The cell a robot is 'at', as the library rounds it: round half away from zero. [N, 2] int64."""
@@ -48,6 +51,11 @@ class RobotMaps:
         # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by sense() alone).
         self.seen_lo = np.full((num_robots, 2), self.maps_padded.shape[1], dtype=np.int64)
         self.seen_hi = np.zeros((num_robots, 2), dtype=np.int64)
+        # What each robot has looked at (the library's exploration map), in blocks of
+        # EXPLORED_BLOCK_M cells of the padded grid: [N, B, B] bool, block b covering padded cells
+        # [4b, 4b + 4) per axis; True once a sensor square has covered the whole block.
+        b = self.maps_padded.shape[1] // EXPLORED_BLOCK_M
+        self.explored = np.zeros((num_robots, b, b), dtype=bool)
 
     def sense(self, cells_xy: np.ndarray) -> None:
         """Copy the world's cells c-s/2 .. c+s/2-1 (per axis) into each robot's map."""
@@ -64,6 +72,9 @@ class RobotMaps:
         self._last_lo, self._last_hi = lo, hi
         np.minimum(self.seen_lo, lo, out=self.seen_lo)
         np.maximum(self.seen_hi, hi, out=self.seen_hi)
+        b_lo, b_hi = -(-lo // EXPLORED_BLOCK_M), hi // EXPLORED_BLOCK_M  # the blocks inside each square
+        for n in np.flatnonzero(moved):
+            self.explored[n, b_lo[n, 0]:b_hi[n, 0], b_lo[n, 1]:b_hi[n, 1]] = True
         if self._cum is not None and moved.any():
             self._stale.append(np.where(moved[:, None], cells_xy, -(1 << 40)))
 

@@ -17,9 +17,10 @@ import madp.policies.select as select_mod
 from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings, noise_generator
-from madp.policies.select import local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
+from madp.policies.select import explore_prior, local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
 from madp.policies.swarm import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
+from madp.sim.robot_maps import EXPLORED_BLOCK_M
 from tests.conftest import one_torch_thread
 from tests.models.models_testutils import tiny_madp_config
 from tests.test_reliability_errors import assert_one_line, cli
@@ -165,6 +166,43 @@ def test_oracle_cell_is_the_cell_rule_on_the_true_map():
                                       views, cands.transpose(1, 0, 2), base.params).argmin(1)[:, None, None], 1)[:, 0])
 
 
+def test_the_explored_map_holds_the_blocks_a_robots_sensor_covered():
+    env = CoverageEnv(_scenario(ROBOTS))
+    pad, b = env.maps.pad, EXPLORED_BLOCK_M
+    (cx, cy) = env.cells()[0]  # (300, 300): sensor cells 268 .. 331 per axis
+    x = env.maps.explored[0].copy()
+    covered = np.argwhere(x)
+    lo, hi = -(-(np.array([cx, cy]) - 32 + pad) // b), (np.array([cx, cy]) + 32 + pad) // b
+    assert (covered.min(0) == lo).all() and (covered.max(0) == hi - 1).all() and x.sum() == np.prod(hi - lo)
+    env.step(np.tile([[5.0, 0.0]], (len(ROBOTS), 1)))  # 1 m to +x: one more column of cells, not of blocks
+    env.step(np.tile([[5.0, 0.0]], (len(ROBOTS), 1)))
+    env.step(np.tile([[5.0, 0.0]], (len(ROBOTS), 1)))
+    env.step(np.tile([[5.0, 0.0]], (len(ROBOTS), 1)))  # 4 m: one more column of blocks
+    assert env.maps.explored[0].sum() == x.sum() + (hi - lo)[1] and env.maps.explored[0][x].all()
+    assert env.maps.explored[1:].sum(axis=(1, 2)).min() > 0 and not env.maps.explored[1][x & ~env.maps.explored[1]].any()
+
+
+def test_explore_counts_unexplored_blocks_at_the_mean_of_explored_ones():
+    env = CoverageEnv(_scenario(ROBOTS))
+    views = local_views(env)
+    prior = explore_prior(env, views)
+    added = prior.weights - views.weights
+    assert (added >= 0).all()
+    for r in range(len(ROBOTS)):
+        got = np.unique(np.round(added[r][added[r] > 0], 9))
+        assert len(got) == 1  # one prior mass per robot, on its unexplored blocks inside the world
+    # robot 0 sensed importance: the prior is the mean mass of its explored blocks
+    explored_blocks = (added[0] == 0) & (views.weights[0] > 0)
+    assert np.unique(np.round(added[0][added[0] > 0], 9))[0] > 0 and explored_blocks.any()
+    # a robot that has sensed nothing moves toward the unexplored part of its cell: from a corner of
+    # the world, into it
+    lone = CoverageEnv(_scenario([[30.0, 30.0], [900.0, 900.0]]))
+    cands = np.zeros((2, 2, 2))
+    cands[0, 0], cands[1, 0] = [-3.0, -3.0], [3.0, 3.0]  # out of the world / into it
+    assert local_views(lone).weights[0].sum() == 0
+    np.testing.assert_array_equal(select_actions("explore", lone, cands)[0], [3.0, 3.0])
+
+
 def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
     env = CoverageEnv(_scenario(ROBOTS))
     cands = _candidates(3, 5)
@@ -235,9 +273,9 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell, mppi, medoid, oracle_cell), got select none"),
+                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
-                                                        "mppi, medoid, oracle_cell, got 'vote'"),
+                                                        "mppi, medoid, explore, oracle_cell, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     assert assert_one_line(*cli(*args, "--out", tmp_path / "o")) == line
