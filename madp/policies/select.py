@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
 
 from madp.errors import SettingError
@@ -102,18 +103,62 @@ def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
     s = env.params.local_map_size
     g = s // GRID_M
     cells = env.cells()
-    if true_map:  # [N, S, S] float32, the world map around each robot's cell
-        m, starts = env.maps, cells - s // 2 + env.maps.pad
-        own = np.stack([m.world_padded[x0:x0 + s, y0:y0 + s] for x0, y0 in starts])
-    else:
-        own = env.local_maps()  # [N, S, S] float32, robot n's own map around its cell
-    weights = own.reshape(len(own), g, GRID_M, s).sum(2, dtype=np.float64).reshape(len(own), g, g, GRID_M).sum(3)
+    starts = cells - s // 2 + env.maps.pad  # each window's lower corner in the padded maps
+    maps = env.maps.world_padded[None] if true_map else env.maps.maps_padded  # the world's, or each robot's own
+    weights = _block_sums(maps, not true_map, starts, g, GRID_M)
     nbr = env.neighbours()
     m = max(int(nbr.sum(1).max()), 1)
     order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
     valid = np.take_along_axis(nbr, order, 1)
     return LocalViews(env.start_m, env.offset_m, weights, (cells - s // 2).astype(np.float64),
                       env.positions_m[order], valid)
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_sums(maps, own, starts, g, b):  # pragma: no cover (compiled)
+    """[R, g, g] float64: the b × b block sums of robot r's window of ``maps[r if own else 0]``
+    from padded corner ``starts[r]``; each block summed over its rows, then its columns (numpy's
+    ``reshape(...).sum(2).sum(3)`` order: the same bits)."""
+    out = np.zeros((len(starts), g, g))
+    for r in range(len(starts)):
+        m = maps[r if own else 0]
+        x0, y0 = starts[r, 0], starts[r, 1]
+        for a in range(g):
+            for c in range(g):
+                total = 0.0
+                for j in range(b):
+                    col = 0.0
+                    for i in range(b):
+                        col += m[x0 + a * b + i, y0 + c * b + j]
+                    total = col if j == 0 else total + col
+                out[r, a, c] = total
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _cell_costs(y, weights, origin, nbr, valid, b):  # pragma: no cover (compiled)
+    """[R, K]: Σ over the blocks of robot r's window closer to y[r, k] than to every valid neighbour
+    (ties: its own) of weight · distance² to the block's centre (:func:`local_cell_costs`)."""
+    r_n, k_n, g = y.shape[0], y.shape[1], weights.shape[1]
+    out = np.zeros((r_n, k_n))
+    for r in range(r_n):
+        for a in range(g):
+            qx = origin[r, 0] + b * a + b / 2
+            for c in range(g):
+                w = weights[r, a, c]
+                if w == 0.0:
+                    continue
+                qy = origin[r, 1] + b * c + b / 2
+                nearest = np.inf
+                for m in range(nbr.shape[1]):
+                    if valid[r, m]:
+                        d = (qx - nbr[r, m, 0]) ** 2 + (qy - nbr[r, m, 1]) ** 2
+                        nearest = min(nearest, d)
+                for k in range(k_n):
+                    d = (qx - y[r, k, 0]) ** 2 + (qy - y[r, k, 1]) ** 2
+                    if d <= nearest:
+                        out[r, k] += w * d
+    return out
 
 
 def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
@@ -144,15 +189,8 @@ def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimPara
     on a grid of GRID_M m: each block's mass at the block's centre). Uses ``views`` and the motion
     constants of ``params`` only."""
     y, _ = move(views.start_m[:, None], views.offset_m[:, None], actions_mps, params)  # [R, K, 2]
-    g = views.weights.shape[1]
-    q = views.origin_m[:, :, None] + GRID_M * np.arange(g) + GRID_M / 2  # [R, 2, G] block centres per axis
-    to_nbr = ((q[:, None, 0, :, None] - views.neighbours_m[..., 0, None, None]) ** 2
-              + (q[:, None, 1, None, :] - views.neighbours_m[..., 1, None, None]) ** 2)  # [R, M, G, G]
-    nearest = np.where(views.valid[..., None, None], to_nbr, np.inf).min(1)  # [R, G, G]
-    to_y = ((q[:, None, 0, :, None] - y[..., 0, None, None]) ** 2
-            + (q[:, None, 1, None, :] - y[..., 1, None, None]) ** 2)  # [R, K, G, G]
-    own = to_y <= nearest[:, None]
-    return (np.where(own, to_y, 0.0) * views.weights[:, None]).sum((2, 3))
+    return _cell_costs(np.ascontiguousarray(y, dtype=np.float64), views.weights, views.origin_m,
+                       np.ascontiguousarray(views.neighbours_m, dtype=np.float64), views.valid, GRID_M)
 
 
 def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np.ndarray:
