@@ -30,8 +30,8 @@ scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Sc
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 # MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option("none", help="MADP: keep one of --candidates K samples per robot: none | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
-CANDIDATES = typer.Option(1, help="MADP: samples per robot per control step, drawn in one batch (K > 1 needs --select).")
+SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: the measured best, README): none | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
+CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 1 with --select none, else 4; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
 @app.command()
@@ -44,8 +44,8 @@ def rollout(
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
     video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
     device: str = typer.Option("cpu", help="Where a learned controller's model runs: cpu | cuda | cuda:I | auto (cuda when there is one)."),
-    select: str = SELECT,
-    candidates: int = CANDIDATES,
+    select: Optional[str] = SELECT,
+    candidates: Optional[int] = CANDIDATES,
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import controller_info, make_controller
@@ -214,8 +214,8 @@ def eval_cmd(
     eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),
     frame: str = typer.Option("d4", help="MADP: d4 (the default: a random rotation/reflection of the world per step, shared by the swarm) | world (the world's own axes)."),
-    select: str = SELECT,
-    candidates: int = CANDIDATES,
+    select: Optional[str] = SELECT,
+    candidates: Optional[int] = CANDIDATES,
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     video: int = typer.Option(0, min=0, help="Write MP4 videos of K environments per controller, spread over the suite's groups (each group's first, then each group's second, ...; cities: the first K cities) to OUT/<suite>/videos/."),

@@ -18,7 +18,7 @@ from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 from madp.models.symmetry import D4_SIZE, inverse_actions, transform_state
 
-from .select import check_selection, select_actions
+from .select import DEFAULT_SELECT, check_selection, default_candidates, select_actions
 from .swarm import clip_speed, swarm_tensors
 
 if TYPE_CHECKING:
@@ -70,8 +70,8 @@ class SamplingSettings:
     eta: float = 0.0
     fixed_noise: bool = False
     frame: str = "d4"
-    select: str = "none"
-    candidates: int = 1
+    select: str = DEFAULT_SELECT
+    candidates: int = default_candidates(DEFAULT_SELECT)
 
     def __post_init__(self) -> None:
         check_sampler(self.sampler, self.sampling_steps, self.eta)
@@ -81,11 +81,13 @@ class SamplingSettings:
 
     @classmethod
     def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
-           fixed_noise: bool = False, frame: str = "d4", select: str = "none", candidates: int = 1
+           fixed_noise: bool = False, frame: str = "d4", select: str | None = None, candidates: int | None = None
            ) -> "SamplingSettings":
-        """The settings with ``None`` standing for the default sampler and S."""
+        """The settings with ``None`` standing for the default sampler, S and selection rule, and for
+        the rule's default K (:func:`madp.policies.select.default_candidates`)."""
+        select = DEFAULT_SELECT if select is None else select
         return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,
-                   select, candidates)
+                   select, default_candidates(select) if candidates is None else candidates)
 
     def as_dict(self) -> dict:
         """What names the sampling in tables, recordings and a suite's config."""

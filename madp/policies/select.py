@@ -48,10 +48,19 @@ from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
+#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
+DEFAULT_SELECT = "none"
+#: K for a rule named without a number of candidates.
+DEFAULT_CANDIDATES = 4
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
 #: MPPI's λ in units of the standard deviation of a robot's K local costs.
 MPPI_TEMPERATURE = 1.0
+
+
+def default_candidates(select: str) -> int:
+    """K when only the rule is given: 1 for ``none``, :data:`DEFAULT_CANDIDATES` for any other rule."""
+    return 1 if select == "none" else DEFAULT_CANDIDATES
 
 
 def check_selection(select: str, candidates: int) -> None:

@@ -94,8 +94,8 @@ def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
     assert_one_line(*cli("bench", "infer", "--no-sweep", "--candidates", "1,x", "--presets", "cpu"), "--candidates")
     rows = bench_select((1, 2), repeats=1, threads=1, num_robots=8)
     assert [(r["candidates"], r["select"]) for r in rows] == [(1, "none"), (2, "oracle"), (2, "cell"), (2, "mppi"),
-                                                                (2, "medoid")]
+                                                                (2, "medoid"), (2, "explore"), (2, "oracle_cell")]
     assert all(r["latency_s"] > 0 and r["num_robots"] == 8 for r in rows)
     lines = format_table({"sweep": None, "swept": False, "paper_latency_s": 0.36, "device": "cpu", "latency": [],
                           "selection": rows})
-    assert sum(x.strip().startswith("2  ") for x in lines) == 4 and any("K" in x and "select" in x for x in lines)
+    assert sum(x.strip().startswith("2  ") for x in lines) == 6 and any("K" in x and "select" in x for x in lines)

@@ -268,7 +268,7 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
 
 
 @pytest.mark.parametrize("args,line", [
-    (["eval", "--select", "oracle"], "madp: error: --select/--candidates: select oracle chooses among several samples "
+    (["eval", "--select", "oracle", "--candidates", "1"], "madp: error: --select/--candidates: select oracle chooses among several samples "
                                      "per robot: expected candidates > 1, got 1"),
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
@@ -278,11 +278,21 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
                                                         "mppi, medoid, explore, oracle_cell, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
+    """(A rule named alone takes its default K: ``SamplingSettings.of``, tested below.)"""
     assert assert_one_line(*cli(*args, "--out", tmp_path / "o")) == line
+
+
+def test_a_rule_named_alone_takes_its_default_number_of_candidates():
+    assert SamplingSettings.of(select="explore").candidates == select_mod.DEFAULT_CANDIDATES > 1
+    assert SamplingSettings.of(select="none").candidates == 1
+    assert SamplingSettings.of(select="oracle", candidates=16).candidates == 16
+    default = SamplingSettings.of()
+    assert (default.select, default.candidates) == (SamplingSettings().select, SamplingSettings().candidates)
+    assert default.select == select_mod.DEFAULT_SELECT
 
 
 def test_rollout_refuses_bad_selection_flags_in_one_line(tmp_path):
     sc = tmp_path / "s.json"
     sc.write_text('{"features": [], "robots": [[1, 1]]}')
-    code, err = cli("rollout", "--scenario", sc, "--controller", "madp", "--select", "mppi")
+    code, err = cli("rollout", "--scenario", sc, "--controller", "madp", "--select", "mppi", "--candidates", "1")
     assert_one_line(code, err, "--select/--candidates")
