@@ -139,7 +139,7 @@ def _block_sums(maps, own, starts, g, b):  # pragma: no cover (compiled)
                     col = 0.0
                     for i in range(b):
                         col += m[x0 + a * b + i, y0 + c * b + j]
-                    total = col if j == 0 else total + col
+                    total += col
                 out[r, a, c] = total
     return out
 

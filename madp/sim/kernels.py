@@ -332,6 +332,16 @@ def sense_squares(maps_padded, world_padded, lo, hi, last_lo, last_hi):
 
 
 @_jit
+def mark_explored(explored, lo, hi, block):
+    """Mark in ``explored [N, B, B]`` the blocks of ``block`` cells that robot n's square
+    [lo[n], hi[n]) covers whole (idempotent: a square already marked changes nothing)."""
+    for n in range(lo.shape[0]):
+        for bx in range(-(-lo[n, 0] // block), hi[n, 0] // block):
+            for by in range(-(-lo[n, 1] // block), hi[n, 1] // block):
+                explored[n, bx, by] = True
+
+
+@_jit
 def refresh_blocks(maps_padded, pad, within, tot, cum, cells, sensor_half):
     """Recompute the block sums of every robot whose ``cells[r]`` is a cell (not < -2^39) under its
     sensor square: world columns and 16-row blocks that the square [c - s/2, c + s/2) touches.

@@ -72,9 +72,7 @@ class RobotMaps:
         self._last_lo, self._last_hi = lo, hi
         np.minimum(self.seen_lo, lo, out=self.seen_lo)
         np.maximum(self.seen_hi, hi, out=self.seen_hi)
-        b_lo, b_hi = -(-lo // EXPLORED_BLOCK_M), hi // EXPLORED_BLOCK_M  # the blocks inside each square
-        for n in np.flatnonzero(moved):
-            self.explored[n, b_lo[n, 0]:b_hi[n, 0], b_lo[n, 1]:b_hi[n, 1]] = True
+        kernels.mark_explored(self.explored, lo, hi, EXPLORED_BLOCK_M)
         if self._cum is not None and moved.any():
             self._stale.append(np.where(moved[:, None], cells_xy, -(1 << 40)))
 
