@@ -30,8 +30,8 @@ scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Sc
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 # MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: none; README, Choosing among MADP's samples): none | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
-CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 1 with --select none, else 4; K > 1 needs a rule other than none).")
+SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; README, Choosing among MADP's samples): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
+CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
 @app.command()

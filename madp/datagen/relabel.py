@@ -42,20 +42,22 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0) -> dict:
 
 def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray], np.ndarray]:
     """What moves the swarm in a relabelling rollout: ``driver(env, expert_u) -> u`` executes the
-    expert's action with probability beta (one draw per step) and the learned policy's otherwise.
+    expert's action with probability beta (one draw per step) and the learned policy's otherwise:
+    MADP with one sample per robot (``select none``, whatever the evaluation default), or LPAC-K3.
 
     The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
     here, so a shard's bytes do not depend on which process makes it or how many there are."""
     import torch
 
     from madp.controllers import make_controller
+    from madp.policies import SamplingSettings
 
     key = (policy["path"], policy["sha256"])
     if key not in _verified:
         if sha256_file(policy["path"]) != policy["sha256"]:
             raise InputError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
         _verified.add(key)
-    learner = make_controller(policy["kind"], policy["path"], seed=seed)  # MADP decentralized or LPAC-K3
+    learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=SamplingSettings.of(select="none"))
     coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
     beta = float(policy["beta"])
 

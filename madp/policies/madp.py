@@ -58,10 +58,10 @@ class SamplingSettings:
       world's symmetries, and a direction the model prefers in its own axes changes every step.
 
     ``candidates`` K and ``select``: every robot draws K candidate actions in the same batched call
-    and keeps one by rule ``select`` (:mod:`madp.policies.select`): ``none`` (K = 1, the default),
+    and keeps one by rule ``select`` (:mod:`madp.policies.select`): ``none`` (K = 1: one sample per robot),
     ``oracle`` (the joint sample of lowest true J after the step: an upper bound that reads the whole
-    world, not a controller robots could run), ``cell``, ``mppi``, ``explore`` or ``medoid`` (each
-    robot on what it knows) and ``oracle_cell`` (``cell`` on the true map: an upper bound).
+    world, not a controller robots could run), ``cell``, ``mppi``, ``explore`` (the default, K = 4) or ``medoid``
+    (each robot on what it knows) and ``oracle_cell`` (``cell`` on the true map: an upper bound).
 
     Checked on construction; the defaults are the measured best."""
 

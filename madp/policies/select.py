@@ -49,7 +49,7 @@ from madp.sim.voronoi import coverage_cost
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
-DEFAULT_SELECT = "none"
+DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
 DEFAULT_CANDIDATES = 4
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.

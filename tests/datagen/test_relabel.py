@@ -107,3 +107,29 @@ def test_relabelling_refusals(tmp_path):
     assert code == 0, err
     ckpt.write_bytes(shipped_checkpoint("madp").read_bytes())
     assert_one_line(*cli("datagen", "--n", 20, "--out", plan, "--policy", ckpt, *SMALL), "other parameters")
+
+
+def test_the_learner_draws_one_sample_per_robot_whatever_the_evaluation_default():
+    """Relabelling rollouts are the learner's own actions: MADP with one sample per robot
+    (``--select none``), not the evaluation default's choice among samples, so a dataset's bytes do
+    not change with that default."""
+    from madp.controllers import make_controller
+    from madp.datagen.relabel import learner_driver, learner_settings
+    from madp.policies import SamplingSettings
+    from madp.policies.select import DEFAULT_SELECT
+
+    path, seed = shipped_checkpoint("madp"), 11
+    drive = learner_driver(learner_settings(path), seed)
+    one = make_controller("madp", str(path), seed=seed, sampling=SamplingSettings.of(select="none"))
+    default = make_controller("madp", str(path), seed=seed)
+    assert DEFAULT_SELECT != "none" and default.sampling.candidates > 1
+    scen = Scenario.random(5, PARAMS)
+    envs = [CoverageEnv(scen) for _ in range(3)]
+    differs = False
+    for _ in range(4):
+        u_drive, u_one, u_default = drive(envs[0], None), one(envs[1]), default(envs[2])
+        np.testing.assert_array_equal(u_drive, u_one)
+        differs |= not np.array_equal(u_drive, u_default)
+        for env in envs:
+            env.step(u_drive)
+    assert differs

@@ -42,7 +42,8 @@ def _actions(policy: MADPPolicy, env: CoverageEnv, g: int, monkeypatch) -> np.nd
 def test_actions_in_a_frame_are_equivariant(model, monkeypatch):
     params = SimParams(num_robots=6, num_features=4)
     sc = Scenario.random(3, params)
-    policy = MADPPolicy(model, "decentralized", SamplingSettings(frame="d4"))
+    policy = MADPPolicy(model, "decentralized", SamplingSettings.of(frame="d4", select="none"))  # one sample;
+    # the choice among samples: tests/policies/test_select.py
     here = {g: _actions(policy, CoverageEnv(sc), g, monkeypatch) for g in range(D4_SIZE)}
     assert np.linalg.norm(here[0] - here[5]) > 1e-3  # the tiny model is not equivariant by itself
     for h in range(1, D4_SIZE):
@@ -55,7 +56,7 @@ def test_actions_in_a_frame_are_equivariant(model, monkeypatch):
 def test_world_frame_is_the_model_unchanged(model):
     sc = Scenario.random(4, SimParams(num_robots=5, num_features=4))
     env = CoverageEnv(sc)
-    plain = MADPPolicy(model, "decentralized", SamplingSettings(frame="world")).sample(env, 1, generator=torch.Generator().manual_seed(1))
+    plain = MADPPolicy(model, "decentralized", SamplingSettings.of(frame="world", select="none")).sample(env, 1, generator=torch.Generator().manual_seed(1))
     obs = torch.from_numpy(env.observations())[None]
     pos = torch.from_numpy(env.positions_m.astype(np.float32))[None]
     z = torch.randn(1, 5, 2, generator=torch.Generator().manual_seed(1))
