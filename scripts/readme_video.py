@@ -7,7 +7,7 @@ first ``cities`` environment for 600 steps (the rollout ``madp eval --suite citi
   fewer frames and pixels are what make the file small);
 - ``docs/cities-madp.gif``: every 5th step at 256 px, 20 frames/s (6 s), for the README page.
 
-    .venv/bin/python scripts/readme_video.py        # ~30 s on one core
+    .venv/bin/python scripts/readme_video.py        # ~1 min on one core
 """
 
 from __future__ import annotations
