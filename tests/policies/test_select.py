@@ -298,28 +298,23 @@ def test_rollout_refuses_bad_selection_flags_in_one_line(tmp_path):
     assert_one_line(code, err, "--select/--candidates")
 
 
-def _equivariance_misses(model, monkeypatch, select: str, seeds=(0, 1)) -> tuple[int, int]:
+def _equivariance_misses(model, monkeypatch, select: str, seeds: tuple[int, ...]) -> tuple[int, int]:
     """Robots whose action at the image ``h x`` of a state in frame g is not ``A_h`` times their
     action at ``x`` in frame ``g h`` (same noise; tests/policies/test_frame.py), over the 7 × 8 (h, g)
     pairs and ``seeds`` scenarios of 6 robots: (misses, robots compared)."""
     from madp.sim.launch import D4_SIZE, d4_matrix
-
-    def compose(g, h):
-        return next(k for k in range(D4_SIZE) if np.allclose(d4_matrix(k), d4_matrix(g) @ d4_matrix(h)))
-
-    def act(env, g):
-        monkeypatch.setattr(madp_policy, "frame_element", lambda seed, step: g)
-        return policy.sample(env, 1, generator=torch.Generator().manual_seed(7))[0]
+    from tests.policies.test_frame import _actions, _compose
 
     policy = MADPPolicy(model, "decentralized", SamplingSettings.of(select=select, candidates=3))
     misses = total = 0
     for seed in seeds:
         sc = Scenario.random(seed, SimParams(num_robots=6, num_features=4))
-        here = {g: act(CoverageEnv(sc), g) for g in range(D4_SIZE)}
+        here = {g: _actions(policy, CoverageEnv(sc), g, monkeypatch) for g in range(D4_SIZE)}
         for h in range(1, D4_SIZE):
             env_h = CoverageEnv(sc.d4_image(h))
             for g in range(D4_SIZE):
-                gap = np.abs(act(env_h, g) - here[compose(g, h)] @ d4_matrix(h).T).max(1)
+                there = _actions(policy, env_h, g, monkeypatch)
+                gap = np.abs(there - here[_compose(g, h)] @ d4_matrix(h).T).max(1)
                 misses, total = misses + int((gap > 2e-4).sum()), total + len(gap)
     return misses, total
 
