@@ -255,7 +255,7 @@ def symmetry_figure(check: Mapping[str, Any], colors: Mapping[str, str], suite: 
                                                           f"within one SE")
             ax.axhline(lay["mean"], color=colors[c], ls="--", lw=1)
         ax.set_xticks(sorted({g for lay in runs.values() for g in lay["by_image"]}))
-        ax.set_xlabel("image g under the world's symmetry group (0: the layout)")
+        ax.set_xlabel("image g under the world's D4 symmetries (0: the layout)")
         ax.set_ylabel("final normalised cost J(T) / J(0)")
         n = n_range(r["n"] for lay in runs.values() for r in lay["by_image"].values())
         ax.set_title(f"{suite} · {layout}: mean ± SE per image (n = {n})", fontsize=10)

@@ -13,6 +13,8 @@ from madp.eval.suites import EVAL_SEED_BIT, LAUNCHES, suite_envs
 from madp.models import MADP, lpac_config, madp_config
 from madp.models.lpac import LPAC
 from madp.policies import SamplingSettings
+from madp.sim import CoverageEnv, DecentralizedCVT
+from madp.sim.launch import D4_SIZE, d4_points
 from madp.training.checkpoint import save_policy
 from tests.eval.conftest import META
 from tests.test_reliability_errors import assert_one_line, cli
@@ -32,6 +34,25 @@ def test_suites_are_seeded_apart_from_datasets():
     assert ((square.robots_m >= [x0, y0]) & (square.robots_m <= [x1, y1])).all()
     s = suite_envs("sigma", 1)[-1].scenario()
     assert (s.features[:, 2] >= 5).all() and (s.features[:, 2] <= 10).all()
+
+
+def test_symmetry_suite_images_are_the_same_world():
+    """Each ``symmetry`` environment is its layout's environment moved by one of the world's 8
+    symmetries, robots on the world's edge included (``line`` spans x = 0 .. 1024): the decentralized
+    CVT, a deterministic function of the state, moves every image's robots to the images of the
+    layout's positions and leaves every image at the layout's cost. So a difference between images'
+    costs is the policy's, not the world's (README, Exploration from packed starts)."""
+    envs = {e.key: e for e in suite_envs("symmetry", 1)}
+    for layout in ("line", "square"):
+        images = [CoverageEnv(envs[f"{layout}_d4-{g}-000"].scenario()) for g in range(D4_SIZE)]
+        base, dcvt = images[0], DecentralizedCVT()  # image 0: the layout itself
+        for _ in range(15):
+            for env in images:
+                env.step(dcvt(env))
+        for g, env in enumerate(images):
+            expect = d4_points(base.positions_m, g, base.params.world_size)
+            np.testing.assert_allclose(env.positions_m, expect, atol=1e-6, err_msg=f"{layout} image {g}")
+            assert env.normalized_cost() == pytest.approx(base.normalized_cost(), rel=1e-9)
 
 
 def test_cities_suite_reads_city_files(cities_dir):
