@@ -122,16 +122,19 @@ class MADP(ActionStatsMixin):
         :func:`madp.models.attention_mask.attention_mask`."""
         return attention_mask(pos_m, self.config.comm_radius_m, valid)
 
-    def embed_tokens(self, obs: Tensor, pos_m: Tensor, mask: Tensor, valid: Tensor | None = None) -> Tensor:
+    def embed_tokens(self, obs: Tensor, pos_m: Tensor, mask: Tensor, valid: Tensor | None = None,
+                     offsets_m: Tensor | None = None) -> Tensor:
         """What each robot computes for itself and shares: ``tokens [B, N, 34] = [z_i, p_i]``.
 
-        ``z_i = CNN(O_i)``; ``p_i`` the neighbourhood offset (module docstring). Padding rows are 0.
+        ``z_i = CNN(O_i)``; ``p_i`` the neighbourhood offset (module docstring) over row i of ``mask``,
+        from ``offsets_m [B, N, N, 2]`` (what robot i holds of x_j − x_i; default: the offsets of
+        ``pos_m``). Padding rows are 0.
         """
         cfg = self.config
         z = apply_per_robot(self.cnn, obs.to(self.dtype), valid, cfg.z_dim)
         if cfg.pos_token == "neighbourhood_offset":
             w = mask.to(pos_m.dtype)  # padding columns are already False (except a padding row's diagonal)
-            off = pairwise_offsets(pos_m)  # [B, N, N, 2], x_j - x_i
+            off = pairwise_offsets(pos_m) if offsets_m is None else offsets_m  # [B, N, N, 2], x_j - x_i
             p = -(w.unsqueeze(-1) * off).sum(-2) / w.sum(-1, keepdim=True).clamp_min(1)
             p = (p / cfg.comm_radius_m).to(z.dtype)
         else:
@@ -322,11 +325,34 @@ class MADP(ActionStatsMixin):
         valid = valid.to(torch.bool)
         mask = self.attention_mask(pos_m, valid)
         tokens = self.embed_tokens(obs, pos_m, mask, valid)  # [B, N, 34], one per robot
+        view = (b, n, n)  # every ego holds every robot's own token and position
+        out = self.sample_views(tokens.unsqueeze(1).expand(*view, tokens.shape[-1]), pos_m.unsqueeze(1).expand(*view, 2),
+                                mask, valid, num_steps=num_steps, eta=eta, generator=generator, noise=noise,
+                                step_noise=step_noise, independent_noise=independent_noise, dedupe=dedupe,
+                                solver=solver, copies=copies)
+        return out[0] if single else out
 
-        packed = pack_neighbourhoods(mask, valid, self.decentralized_row_tokens, dedupe and not independent_noise)
-        pack, pos_p = packed.pack, packed.pack(pos_m)
+    @torch.no_grad()
+    def sample_views(self, tokens_v: Tensor, pos_v: Tensor, member: Tensor, valid: Tensor, num_steps: int,
+                     eta: float = 0.0, generator: torch.Generator | None = None, noise: Tensor | None = None,
+                     step_noise: Tensor | None = None, independent_noise: bool = False, dedupe: bool = True,
+                     key: Tensor | None = None, solver=None, sampler: str = DEFAULT_SAMPLER, copies: int = 1) -> Tensor:
+        """Decentralized sampling from what each robot holds: ego i of swarm b runs the encoder and
+        the decoder on its neighbourhood ``member[b, i]`` (``[B, N, N]`` bool, itself included), with
+        the tokens ``tokens_v[b, i, j]`` ``[B, N, N, 34]`` and positions ``pos_v[b, i, j]`` ``[B, N, N, 2]``
+        it holds of each member, and keeps its own action -> ``actions_norm [B * C, N, 2]``.
+        ``key [B, N, N]`` (> 0 at members): egos share one computation only where their rows of
+        ``key`` are equal (default: where their members are; then every ego must hold the same data
+        of each robot). :meth:`sample_decentralized` (every robot's true state) is this with every
+        ego holding every robot's own token and position. Noise and ``copies`` as there."""
+        solver = solver or self.make_sampler(sampler, num_steps, eta, None)
+        b, n = valid.shape
+        dev = pos_v.device
+        packed = pack_neighbourhoods(member, valid, self.decentralized_row_tokens, dedupe and not independent_noise,
+                                     key)
+        pack, pos_p = packed.pack, packed.pack_view(pos_v)
         mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius_m, packed.valid, packed.group)
-        memory = self.encode_tokens(pack(tokens), pos_p, mask_p)
+        memory = self.encode_tokens(packed.pack_view(tokens_v), pos_p, mask_p)
         if copies > 1:  # packed row r, copy c -> row r * C + c
             memory, pos_p, mask_p = (t.repeat_interleave(copies, 0) for t in (memory, pos_p, mask_p))
 
@@ -355,5 +381,4 @@ class MADP(ActionStatsMixin):
         x = self._sample_loop(memory, pos_p, mask_p, x, solver, draw).unflatten(0, (packed.rows, copies))
         own = torch.stack([packed.own(x[:, c]) for c in range(copies)], 1)  # each ego's own action [B * N, C, A]
         out = own.reshape(b, n, copies, -1).transpose(1, 2).flatten(0, 1)  # [B * C, N, A]
-        out = out * valid.repeat_interleave(copies, 0).unsqueeze(-1).to(x.dtype)
-        return out[0] if single else out
+        return out * valid.repeat_interleave(copies, 0).unsqueeze(-1).to(x.dtype)

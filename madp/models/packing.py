@@ -54,11 +54,20 @@ class PackedNeighbourhoods:
     unit_of_ego: Tensor
     valid: Tensor
     group: Tensor
+    unit_ego: Tensor
 
     def pack(self, t: Tensor) -> Tensor:
         """``[B, N, *F] -> [R, row_len, *F]``: every token's copy of its robot's data (0 at padding)."""
         out = t.new_zeros(self.rows, self.row_len, *t.shape[2:])
         out[self.row, self.slot] = t[self.batch, self.robot]
+        return out
+
+    def pack_view(self, t: Tensor) -> Tensor:
+        """``[B, N, N, *F] -> [R, row_len, *F]``: every token's data as its unit's ego holds it,
+        ``t[b, i, j]`` being what ego i of swarm b holds of robot j (0 at padding)."""
+        n = t.shape[1]
+        out = t.new_zeros(self.rows, self.row_len, *t.shape[3:])
+        out[self.row, self.slot] = t[self.batch, self.unit_ego[self.unit] % n, self.robot]
         return out
 
     def own(self, x: Tensor) -> Tensor:
@@ -74,22 +83,28 @@ class PackedNeighbourhoods:
         return x.new_zeros(b_n, x.shape[-1])  # no valid robot at all
 
 
-def pack_neighbourhoods(mask: Tensor, valid: Tensor, row_tokens: int, dedupe: bool) -> PackedNeighbourhoods:
+def pack_neighbourhoods(mask: Tensor, valid: Tensor, row_tokens: int, dedupe: bool,
+                        key: Tensor | None = None) -> PackedNeighbourhoods:
     """The packed layout of the neighbourhoods of ``mask [B, N, N]`` among the ``valid [B, N]`` robots
     (padding egos have an empty one), in rows of ``row_tokens`` tokens, or of the largest neighbourhood
-    if that is longer. ``dedupe``: egos with the same neighbourhood share one unit."""
+    if that is longer. ``dedupe``: egos with the same neighbourhood share one unit; with ``key [B, N, N]``
+    long (> 0 at members, 0 elsewhere), egos share one only where their rows of ``key`` are equal
+    (what each ego holds of each member is then the same: :meth:`PackedNeighbourhoods.pack_view`)."""
     b, n = valid.shape
     dev = mask.device
     # Neighbourhood ("unit") membership per ego; padding egos have an empty one.
     rows = (mask & valid.unsqueeze(-1)).reshape(b * n, n)
     ego_batch = torch.arange(b, device=dev).repeat_interleave(n)
     if dedupe:
-        key = torch.cat([ego_batch.unsqueeze(1), rows.long()], dim=1)
-        uniq, unit_of_ego = torch.unique(key, dim=0, return_inverse=True)  # sorted: swarm first
-        unit_batch, unit_rows = uniq[:, 0], uniq[:, 1:].bool()
+        ident = rows.long() if key is None else torch.where(rows, key.reshape(b * n, n), 0)
+        uniq, unit_of_ego = torch.unique(torch.cat([ego_batch.unsqueeze(1), ident], dim=1), dim=0,
+                                         return_inverse=True)  # sorted: swarm first
+        unit_batch, unit_rows = uniq[:, 0], uniq[:, 1:] > 0
+        unit_ego = torch.full((len(uniq),), b * n, dtype=torch.long, device=dev)
+        unit_ego.scatter_reduce_(0, unit_of_ego, torch.arange(b * n, device=dev), "amin")
     else:
         unit_of_ego = torch.arange(b * n, device=dev)
-        unit_batch, unit_rows = ego_batch, rows
+        unit_batch, unit_rows, unit_ego = ego_batch, rows, unit_of_ego
     # Pack: token t is robot tok_robot[t] as a member of unit tok_unit[t] (tokens grouped by unit,
     # robots ascending). Units are laid out whole, side by side, in rows of row_len tokens
     # (next fit, in unit order); a row may mix swarms since units never see each other.
@@ -108,4 +123,4 @@ def pack_neighbourhoods(mask: Tensor, valid: Tensor, row_tokens: int, dedupe: bo
     group_p = torch.full((rows_n, row_len), -1, dtype=torch.long, device=dev)
     group_p[tok_row, tok_slot] = tok_unit
     return PackedNeighbourhoods(row_len, rows_n, tok_batch, tok_robot, tok_unit, tok_row, tok_slot, unit_rows,
-                                unit_of_ego, valid_p, group_p)
+                                unit_of_ego, valid_p, group_p, unit_ego)

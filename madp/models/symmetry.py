@@ -29,7 +29,7 @@ from torch import Tensor
 
 from madp.sim.launch import D4_SIZE, d4_matrix
 
-__all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "transform_state", "inverse_actions", "AUGMENTATIONS"]
+__all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "transform_state", "transform_points", "inverse_actions", "AUGMENTATIONS"]
 
 AUGMENTATIONS = ("none", "d4")
 
@@ -70,6 +70,12 @@ def transform_sample(obs: Tensor, pos_m: Tensor, actions: Tensor, g: int, world_
     comm = img[..., 1:3, :, :].movedim(-3, -1)  # [..., S, S, 2] offset vectors per pixel
     comm = _vectors(comm, g).movedim(-1, -3)
     img = torch.cat([img[..., :1, :, :], comm, img[..., 3:, :, :]], dim=-3)
+    return img.contiguous(), transform_points(pos_m, g, world_size), _vectors(actions, g)
+
+
+def transform_points(pos_m: Tensor, g: int, world_size: float) -> Tensor:
+    """Element g applied to points ``pos_m [..., 2]`` (m), about the world's centre."""
+    if g == 0:
+        return pos_m
     centre = world_size / 2.0
-    pos = _vectors(pos_m - centre, g) + centre
-    return img.contiguous(), pos, _vectors(actions, g)
+    return _vectors(pos_m - centre, g) + centre

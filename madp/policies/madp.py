@@ -4,6 +4,12 @@ sampler (DDIM or DPM-Solver++, S steps, η for DDIM; :class:`SamplingSettings`).
 ``mode="decentralized"``: each robot samples from the tokens of its own neighbourhood and keeps its
 own action (what the robots would run); ``mode="centralized"``: one masked pass over the whole swarm
 (a faster approximation).
+
+On environments with a network (:mod:`madp.sim.network`) decentralized MADP runs as the robots would:
+each robot computes its token from its own observation (its neighbours' channels from its inbox) and
+its neighbourhood offset from the positions it holds, sends it with its position on the ``token``
+channel, and samples from the tokens and positions in its own inbox (:meth:`MADP.sample_views`); a
+token that arrives late was computed in the frame of the step it was sent.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import torch
 
 from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
-from madp.models.symmetry import D4_SIZE, inverse_actions, transform_state
+from madp.models.symmetry import D4_SIZE, inverse_actions, transform_points, transform_state
 
 from .select import DEFAULT_SELECT, check_selection, default_candidates, select_actions
 from .swarm import clip_speed, swarm_tensors
@@ -147,16 +153,64 @@ class MADPPolicy:
         ``obs [B, N, 4, S, S]``, ``pos [B, N, 2]``, the states of ``envs`` (one per b), C = ``copies``
         samples of each: the model encodes every state once and denoises its C copies."""
         fn = self.model.sample_decentralized if self.mode == "decentralized" else self.model.sample
-        if self.frame == "d4":
-            gs = [frame_element(self.seed if e.scenario.seed is None else e.scenario.seed, e.steps) for e in envs]
-            moved = [transform_state(o, x, g, float(envs[0].params.world_size)) for o, x, g in zip(obs, pos, gs)]
-            obs, pos = torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved])
-        u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise,
-               copies=copies)
+        gs = [frame_element(self.seed if e.scenario.seed is None else e.scenario.seed, e.steps) for e in envs]
+        if envs[0].network is not None:
+            if self.mode != "decentralized":
+                raise SettingError("mode", "a network between the robots needs decentralized MADP, got centralized")
+            u = self._sample_inboxes(obs, pos, noise, step_noise, envs, copies, gs)
+        else:
+            if self.frame == "d4":
+                moved = [transform_state(o, x, g, float(envs[0].params.world_size)) for o, x, g in zip(obs, pos, gs)]
+                obs, pos = torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved])
+            u = fn(obs, pos, self.num_steps, self.eta, sampler=self.sampler, noise=noise, step_noise=step_noise,
+                   copies=copies)
         u = self.model.denormalize_actions(u).double().cpu()
         if self.frame == "world":
             return u
         return torch.stack([inverse_actions(ub, g) for ub, g in zip(u, np.repeat(gs, copies))])
+
+    def _sample_inboxes(self, obs: torch.Tensor, own: torch.Tensor, noise: torch.Tensor, step_noise: torch.Tensor | None,
+                        envs: list["CoverageEnv"], copies: int, gs: list[int]) -> torch.Tensor:
+        """Decentralized sampling through every robot's inbox (module docstring): ``obs [B, N, 4, S, S]``
+        and ``own [B, N, 2]`` (each robot's own observation and position estimate, world frame) ->
+        normalised actions ``[B * C, N, 2]`` in each environment's frame."""
+        model, dev, r2 = self.model, self.device, self.model.config.comm_radius_m ** 2
+        b, n = own.shape[:2]
+        world = float(envs[0].params.world_size)
+        gs = gs if self.frame == "d4" else [0] * b
+        eye = torch.eye(n, dtype=torch.bool, device=dev)
+
+        def frame(points: np.ndarray | torch.Tensor, k: int) -> torch.Tensor:  # world -> env k's frame, float32
+            t = torch.as_tensor(np.asarray(points, dtype=np.float32) if isinstance(points, np.ndarray) else points)
+            return transform_points(t.to(dev), gs[k], world)
+
+        moved = [transform_state(o, x, g, world) for o, x, g in zip(obs, own, gs)]
+        obs, own_f = torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved])
+        held = torch.stack([frame(e.neighbour_view()[1], k) for k, e in enumerate(envs)])  # [B, N, N, 2]
+        held = torch.where(eye[..., None], own_f[:, :, None], held)
+        known = torch.from_numpy(np.stack([e.neighbour_view()[0] for e in envs])).to(dev)
+        near = (held - own_f[:, :, None]).square().sum(-1) < r2
+        mask = (known & near) | eye
+        tokens = model.embed_tokens(obs, own_f, mask, None, offsets_m=held - own_f[:, :, None])  # [B, N, T]
+        width = tokens.shape[-1]
+        tokens_v = torch.empty(b, n, n, width, dtype=tokens.dtype, device=dev)
+        pos_v = torch.empty(b, n, n, 2, dtype=own_f.dtype, device=dev)
+        member = torch.empty(b, n, n, dtype=torch.bool, device=dev)
+        key = torch.empty(b, n, n, dtype=torch.long, device=dev)
+        for k, e in enumerate(envs):  # each robot sends its position and token; what each robot holds
+            sent = np.concatenate([e.estimates_m(), tokens[k].double().cpu().numpy()], axis=1)
+            rec = e.network.exchange("token", e.steps, sent)
+            pos_v[k] = frame(rec.payload[:, :, :2], k)
+            tokens_v[k] = torch.from_numpy(rec.payload[:, :, 2:].astype(np.float32)).to(dev, tokens.dtype)
+            member[k] = torch.from_numpy(rec.valid).to(dev)
+            key[k] = torch.from_numpy(rec.sent_step + 1).to(dev)
+        pos_v = torch.where(eye[..., None], own_f[:, :, None], pos_v)
+        tokens_v = torch.where(eye[..., None], tokens[:, :, None], tokens_v)
+        member = (member & ((pos_v - own_f[:, :, None]).square().sum(-1) < r2)) | eye
+        key = torch.where(eye, torch.tensor([e.steps + 1 for e in envs], device=dev)[:, None, None], key)
+        valid = torch.ones(b, n, dtype=torch.bool, device=dev)
+        return model.sample_views(tokens_v, pos_v, member, valid, self.num_steps, self.eta, noise=noise,
+                                  step_noise=step_noise, key=key, sampler=self.sampler, copies=copies)
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:

@@ -43,7 +43,7 @@ import numpy as np
 from madp.errors import SettingError
 from madp.sim.env import CoverageEnv, move
 from madp.sim.params import SimParams
-from madp.sim.robot_maps import EXPLORED_BLOCK_M
+from madp.sim.robot_maps import EXPLORED_BLOCK_M, robot_cells
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
@@ -107,20 +107,24 @@ class LocalViews:
 
 def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
     """Every robot's :class:`LocalViews` row: its own map (``env.maps``, what it sensed) in its
-    256 m window (zero outside the world), its position, and its neighbours (``env.neighbours()``).
-    ``true_map``: the world map in the same window instead (``oracle_cell``: not what a robot knows)."""
+    256 m window around its own position estimate (zero outside the world), that position, and the
+    neighbours it knows of (:meth:`CoverageEnv.neighbour_view`: its inbox when the environment has a
+    network). ``true_map``: the world map in the same window instead (``oracle_cell``: not what a robot knows)."""
     s = env.params.local_map_size
     g = s // GRID_M
-    cells = env.cells()
+    own = env.estimates_m()
+    exact = own is env.positions_m  # no position noise: the motion rule's own start and offset
+    start_m, offset_m = (env.start_m, env.offset_m) if exact else (own, np.zeros_like(own))
+    cells = robot_cells(own)
     starts = cells - s // 2 + env.maps.pad  # each window's lower corner in the padded maps
     maps = env.maps.world_padded[None] if true_map else env.maps.maps_padded  # the world's, or each robot's own
     weights = _block_sums(maps, not true_map, starts, g, GRID_M)
-    nbr = env.neighbours()
+    nbr, held_m = env.neighbour_view()
     m = max(int(nbr.sum(1).max()), 1)
     order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
     valid = np.take_along_axis(nbr, order, 1)
-    return LocalViews(env.start_m, env.offset_m, weights, (cells - s // 2).astype(np.float64),
-                      env.positions_m[order], valid)
+    neighbours_m = np.take_along_axis(held_m, order[:, :, None], 1)
+    return LocalViews(start_m, offset_m, weights, (cells - s // 2).astype(np.float64), neighbours_m, valid)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -3,7 +3,8 @@ that looks only at what it is allowed to see; learned policies implement the sam
 
 - :class:`ClairvoyantCVT` (the expert): one Lloyd step per control step on the full world map.
 - :class:`DecentralizedCVT`: each robot, on its own sensed map inside its 256 m local window, with
-  only the neighbours within r_c.
+  only the neighbours within r_c that it knows of (:meth:`CoverageEnv.neighbour_view`: through its
+  inbox when the environment has a network).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from typing import Protocol
 import numpy as np
 
 from .env import CoverageEnv
+from .robot_maps import robot_cells
 from .voronoi import MASS_EPS, cell_sums, world_sums
 
 GOAL_EPS_M = 1e-10
@@ -25,9 +27,10 @@ class Controller(Protocol):
 
 
 def lloyd_velocity(env: CoverageEnv, goals_m: np.ndarray) -> np.ndarray:
-    """u = min(|g - x| / Δt, u_max) toward the goal; 0 when within 1e-10 m or oscillating. [N, 2]."""
+    """u = min(|g - x| / Δt, u_max) toward the goal from each robot's own position estimate x (the
+    true position without position noise); 0 when within 1e-10 m or oscillating. [N, 2]."""
     p = env.params
-    diff = goals_m - env.positions_m
+    diff = goals_m - env.estimates_m()
     dist = np.linalg.norm(diff, axis=1)
     speed = np.minimum(dist / p.dt_s, p.max_speed_mps)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -63,14 +66,16 @@ class DecentralizedCVT:
         self.masses: np.ndarray | None = None
 
     def goals(self, env: CoverageEnv) -> np.ndarray:
-        """[N, 2] goals from each robot's own map, its neighbours and its window."""
+        """[N, 2] goals from each robot's own map, the neighbours it knows of and its window."""
         p = env.params
-        x = env.positions_m
+        x = env.estimates_m()
         n, s, w = len(x), p.local_map_size, p.world_size
-        base = env.cells() - s // 2  # [N, 2] global cell of local cell (0, 0)
+        base = robot_cells(x) - s // 2  # [N, 2] global cell of local cell (0, 0)
         boxes = np.concatenate([np.maximum(base, 0), np.minimum(base + s, w)], axis=1).astype(np.float64)
-        others = np.broadcast_to(np.arange(n), (n, n))  # every robot competes where it is a neighbour
-        mass, centroid, _ = cell_sums(x, x, others, env.neighbours(), boxes, block_sums=env.maps.block_sums())
+        known, held_m = env.neighbour_view()  # robot i competes with the positions it holds, [i, j] at i·N + j
+        others = np.arange(n * n).reshape(n, n)
+        mass, centroid, _ = cell_sums(x, held_m.reshape(n * n, 2), others, known, boxes,
+                                      block_sums=env.maps.block_sums())
         self.masses = mass
         return centroid
 

@@ -4,6 +4,12 @@
     expert = ClairvoyantCVT()
     for _ in range(600): env.step(expert(env))
 
+``network=NetworkSettings(...)`` puts a network between the robots (:mod:`madp.sim.network`): each
+robot then knows its neighbours only through what it has received (:meth:`CoverageEnv.neighbour_view`,
+the observations' neighbour channels, the controllers), its own position only through its estimate
+(:meth:`CoverageEnv.estimates_m`), failed robots stop, and the cost counts the survivors. Without one
+(``network=None``) every robot reads the others' true current state, as the batched computation always has.
+
 State: the fixed world map Φ (and its column prefix sums), robot positions (m), what each robot has
 sensed, and the short position history the library uses to detect oscillation. Rules follow the
 Coverage Control Library (SPEC §2): holonomic single integrators, speed clipped to u_max, positions
@@ -15,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .idf import importance_map
+from .network import Network, NetworkSettings, Received
 from .observations import stack_observations
 from .params import SimParams
 from .robot_maps import RobotMaps, robot_cells
@@ -49,9 +56,12 @@ def move(start_m: np.ndarray, offset_m: np.ndarray, actions_mps: np.ndarray, par
 class CoverageEnv:
     """One episode of decentralized coverage for N robots over a fixed importance map."""
 
-    def __init__(self, scenario: Scenario, world_map: np.ndarray | None = None):
-        """Build the world from ``scenario``; ``world_map`` [W, W] overrides the map from its features."""
+    def __init__(self, scenario: Scenario, world_map: np.ndarray | None = None,
+                 network: NetworkSettings | None = None):
+        """Build the world from ``scenario``; ``world_map`` [W, W] overrides the map from its features;
+        ``network``: what the network between the robots does (None: every robot reads the true state)."""
         self.scenario = scenario
+        self.network_settings = network
         self.params: SimParams = scenario.params
         p = self.params
         p.check_fits(f"scenario {scenario.name or scenario.seed}")  # before the maps are allocated
@@ -75,6 +85,11 @@ class CoverageEnv:
         self.history: list[np.ndarray] = []
         self._record_history()
         self.steps = 0
+        self.network: Network | None = None
+        if self.network_settings is not None:
+            seed = self.scenario.seed if self.scenario.seed is not None else 0
+            self.network = Network(self.network_settings, self.num_robots, p.comm_radius_m, p.world_size, seed)
+        self._beacon()
         self.cost0 = coverage_cost(self.prefix, self.positions_m)
         if not self.cost0 > 0:
             raise ScenarioError(f"scenario {self.scenario.name or self.scenario.seed}: J(0) = {self.cost0} (no importance "
@@ -88,12 +103,25 @@ class CoverageEnv:
             raise ValueError(f"actions must have shape {self.positions_m.shape}, got {u.shape}")
         if not np.isfinite(u).all():
             raise ValueError("actions contain NaN or infinity")
+        if self.network is not None:  # failed robots no longer move (nor sense: they stay where they sensed)
+            u = np.where(self.network.alive(self.steps)[:, None], u, 0.0)
         pos, self.offset_m = move(self.start_m, self.offset_m, u, self.params)
         self.positions_m = pos
         self.maps.sense(robot_cells(pos))
         self._record_history()
         self.steps += 1
+        self._beacon()
         return pos
+
+    def _beacon(self) -> None:
+        """The network's step: the true positions, each robot's estimate, and every robot's position
+        beacon (the ``position`` channel)."""
+        self._received: Received | None = None
+        self._estimates = self.positions_m
+        if self.network is not None:
+            self.network.record(self.steps, self.positions_m)
+            self._estimates = self.network.estimates(self.steps, self.positions_m)
+            self._received = self.network.exchange("position", self.steps, self._estimates)
 
     def _record_history(self) -> None:
         # The library's deque: when full it drops the oldest entry *instead of* adding the new one.
@@ -117,23 +145,52 @@ class CoverageEnv:
         return robot_cells(self.positions_m)
 
     def neighbours(self) -> np.ndarray:
-        """Communication graph [N, N] bool: distance < r_c, no self loops."""
+        """Communication graph [N, N] bool: distance < r_c, no self loops (the true state)."""
         d = np.linalg.norm(self.positions_m[:, None] - self.positions_m[None], axis=2)
         return (d < self.params.comm_radius_m) & ~np.eye(self.num_robots, dtype=bool)
+
+    def estimates_m(self) -> np.ndarray:
+        """[N, 2]: each robot's estimate of its own position (the true one without position noise)."""
+        return self._estimates
+
+    def alive(self) -> np.ndarray:
+        """[N] bool: the robots still running (all of them without a network)."""
+        return np.ones(self.num_robots, bool) if self.network is None else self.network.alive(self.steps)
+
+    def neighbour_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """What each robot knows of the others: ``known [N, N]`` bool (robot i holds a position of robot
+        j within r_c of its own estimate; never i = j) and ``positions_m [N, N, 2]`` (the position it
+        holds; its own estimate at [i, i]). Without a network: the true neighbours and positions."""
+        if self._received is None:
+            n = self.num_robots
+            return self.neighbours(), np.broadcast_to(self.positions_m[None], (n, n, 2))
+        own, rec = self._estimates, self._received
+        held = rec.payload.copy()
+        held[np.arange(self.num_robots), np.arange(self.num_robots)] = own
+        d = np.linalg.norm(held - own[:, None], axis=2)
+        return rec.valid & (d < self.params.comm_radius_m), held
 
     def local_maps(self) -> np.ndarray:
         """Raw 256 × 256 crops of each robot's own map [N, S, S] float32."""
         return self.maps.local_maps(self.cells())
 
     def observations(self) -> np.ndarray:
-        """O [N, 4, 32, 32] float32, channels (local map, comm x, comm y, boundary)."""
+        """O [N, 4, 32, 32] float32, channels (local map, comm x, comm y, boundary): each robot's own map
+        and the border around its (estimated) position, its neighbours from :meth:`neighbour_view`."""
         p = self.params
-        cells = self.cells()
-        return stack_observations(self.maps.resized_local_maps(cells, p.obs_size), cells, self.positions_m,
-                                  p.world_size, p.comm_radius_m, p.local_map_size)
+        if self.network is None:
+            cells = self.cells()
+            return stack_observations(self.maps.resized_local_maps(cells, p.obs_size), cells, self.positions_m,
+                                      p.world_size, p.comm_radius_m, p.local_map_size)
+        own = self.estimates_m()
+        cells = robot_cells(own)
+        return stack_observations(self.maps.resized_local_maps(cells, p.obs_size), cells, own, p.world_size,
+                                  p.comm_radius_m, p.local_map_size, view=self.neighbour_view())
 
     def cost(self) -> float:
-        """Coverage cost J of the current positions on the world map."""
+        """Coverage cost J of the current positions of the running robots on the world map."""
+        if self.network is not None and self.network.failed.any():
+            return coverage_cost(self.prefix, self.positions_m[self.alive()])
         return coverage_cost(self.prefix, self.positions_m)
 
     def normalized_cost(self) -> float:

@@ -94,21 +94,34 @@ def raw_boundary_maps(cells_xy: np.ndarray, world_size: int, local_size: int = 2
 
 
 def neighbour_maps(positions_m: np.ndarray, comm_radius_m: float, out_size: int = 32) -> np.ndarray:
-    """Neighbour maps [N, 2, out, out]: relative positions r = x_j - x_i of neighbours within r_c.
-
-    Pixel round(r · out / (2 r_c) + out/2 - 0.5) per axis (round half to even, as torch.round),
-    value r / r_c; values of neighbours sharing a pixel add up.
-    """
+    """Neighbour maps [N, 2, out, out]: relative positions r = x_j - x_i of neighbours within r_c
+    (every robot's true state; :func:`relative_neighbour_maps` draws them)."""
     n = len(positions_m)
     rel = (positions_m[None, :, :] - positions_m[:, None, :]).astype(np.float32)  # [i, j, 2]
     dist = np.linalg.norm(positions_m[None, :, :] - positions_m[:, None, :], axis=2)
     mask = (dist < comm_radius_m) & ~np.eye(n, dtype=bool)
+    return relative_neighbour_maps(rel, mask, comm_radius_m, out_size)
+
+
+def view_neighbour_maps(own_m: np.ndarray, known: np.ndarray, positions_m: np.ndarray, comm_radius_m: float,
+                        out_size: int = 32) -> np.ndarray:
+    """Neighbour maps [N, 2, out, out] of what each robot knows: its own position ``own_m [N, 2]`` and
+    the positions it holds of the others, ``positions_m [N, N, 2]`` where ``known [N, N]``."""
+    rel = (positions_m - own_m[:, None, :]).astype(np.float32)
+    return relative_neighbour_maps(rel, known, comm_radius_m, out_size)
+
+
+def relative_neighbour_maps(rel_m: np.ndarray, mask: np.ndarray, comm_radius_m: float, out_size: int = 32) -> np.ndarray:
+    """Neighbour maps [N, 2, out, out] from offsets ``rel_m [N, N, 2]`` float32 (r = x_j - x_i) of the
+    neighbours ``mask [N, N]``: pixel round(r · out / (2 r_c) + out/2 - 0.5) per axis (round half to
+    even, as torch.round), value r / r_c; values of neighbours sharing a pixel add up."""
+    n = len(rel_m)
     scale = np.float32(out_size / (comm_radius_m * 2.0))
-    pix = np.round(rel * scale + np.float32(out_size / 2.0 - 0.5)).astype(np.int64)
+    pix = np.round(rel_m * scale + np.float32(out_size / 2.0 - 0.5)).astype(np.int64)
     pix = np.clip(pix, 0, out_size - 1)
     i, j = np.nonzero(mask)
     out = np.zeros((n, 2, out_size, out_size), dtype=np.float32)
-    vals = rel[i, j] / np.float32(comm_radius_m)
+    vals = rel_m[i, j] / np.float32(comm_radius_m)
     np.add.at(out, (i, 0, pix[i, j, 0], pix[i, j, 1]), vals[:, 0])
     np.add.at(out, (i, 1, pix[i, j, 0], pix[i, j, 1]), vals[:, 1])
     return out
@@ -128,11 +141,17 @@ def observation_tensor(
 
 
 def stack_observations(resized_local: np.ndarray, cells_xy: np.ndarray, positions_m: np.ndarray, world_size: int,
-                       comm_radius_m: float, local_size: int = 256) -> np.ndarray:
-    """O [N, 4, out, out] float32 from the already resized local maps [N, out, out] and the robots' state."""
+                       comm_radius_m: float, local_size: int = 256,
+                       view: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """O [N, 4, out, out] float32 from the already resized local maps [N, out, out] and the robots' state:
+    ``positions_m`` [N, 2] the robots' (own) positions; ``view`` = (known [N, N], positions [N, N, 2]):
+    the neighbours each robot knows of (:func:`view_neighbour_maps`; None: every robot's true state)."""
     n, out_size = len(positions_m), resized_local.shape[-1]
     obs = np.empty((n, 4, out_size, out_size), dtype=np.float32)
     obs[:, 0] = resized_local
-    obs[:, 1:3] = neighbour_maps(positions_m, comm_radius_m, out_size)
+    if view is None:
+        obs[:, 1:3] = neighbour_maps(positions_m, comm_radius_m, out_size)
+    else:
+        obs[:, 1:3] = view_neighbour_maps(positions_m, view[0], view[1], comm_radius_m, out_size)
     obs[:, 3] = boundary_maps(cells_xy, world_size, local_size, out_size)
     return obs
