@@ -122,6 +122,30 @@ def segments_message(
 ) -> bytes:
     """Encoded ``foxglove.SceneUpdate`` with one line list: segment i from ``starts[i]`` to ``ends[i]``."""
     fx = _fx()
+    return fx.SceneUpdate(entities=[_segments_entity(starts, ends, log_time_ns, entity_id, rgba)]).encode()
+
+
+#: How :func:`links_message` draws each link state of :mod:`madp.sim.network` (entity id, colour).
+LINK_STYLES = {1: ("delivered", (0.2, 0.8, 0.3, 0.8)), 2: ("lost", (0.9, 0.15, 0.15, 0.9)),
+               3: ("kept", (0.95, 0.7, 0.1, 0.8))}
+
+
+def links_message(positions: np.ndarray, links: np.ndarray, log_time_ns: int) -> bytes:
+    """Encoded ``foxglove.SceneUpdate`` of the network's links at one step: per state of
+    :data:`LINK_STYLES` one entity, a line from sender j to receiver i (``positions [N, 2]``) for every
+    link ``links[i, j]`` in that state (an entity with no segments clears the last step's)."""
+    fx = _fx()
+    p = positions.astype(np.float64)
+    entities = []
+    for state, (name, rgba) in LINK_STYLES.items():
+        i, j = np.nonzero(links == state)
+        entities.append(_segments_entity(p[j], p[i], log_time_ns, f"links {name}", rgba))
+    return fx.SceneUpdate(entities=entities).encode()
+
+
+def _segments_entity(starts: np.ndarray, ends: np.ndarray, log_time_ns: int, entity_id: str,
+                     rgba: tuple[float, float, float, float]):
+    fx = _fx()
     pts = np.empty((2 * len(starts), 2), dtype=np.float64)
     pts[0::2] = starts
     pts[1::2] = ends
@@ -133,8 +157,7 @@ def segments_message(
         points=[fx.Point3(x=x, y=y, z=0.0) for x, y in pts.tolist()],
         color=fx.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
     )
-    entity = fx.SceneEntity(timestamp=_timestamp(log_time_ns), frame_id=FRAME_ID, id=entity_id, lines=[line])
-    return fx.SceneUpdate(entities=[entity]).encode()
+    return fx.SceneEntity(timestamp=_timestamp(log_time_ns), frame_id=FRAME_ID, id=entity_id, lines=[line])
 
 
 def goals_message(positions: np.ndarray, goals: np.ndarray, log_time_ns: int) -> bytes:
@@ -152,6 +175,7 @@ __all__ = [
     "ACTION_DRAW_SECONDS",
     "FRAME_ID",
     "GRID_MAX_CELLS",
+    "LINK_STYLES",
     "ROBOT_DIAMETER_M",
     "TOPIC_ACTIONS",
     "TOPIC_GOALS",
@@ -161,6 +185,7 @@ __all__ = [
     "downsample_map",
     "goals_message",
     "grid_message",
+    "links_message",
     "robots_message",
     "schemas",
 ]

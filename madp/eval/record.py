@@ -32,6 +32,10 @@ Topics (``S`` = recorded steps: every ``every``-th step of ``0..T`` plus the las
                    ``sample_horizon_steps`` steps of ``dt_s`` (``sample_horizon_steps + 1`` points,
                    clamped to the world like the simulator's positions), the "fan of possible futures"
                    of the paper's Figure 1. NaN samples are skipped. At step T the fans are deleted.
+``/network/links`` only when ``links`` is given (a rollout over a network); ``foxglove.SceneUpdate`` at
+                   every step of S: a line from sender to receiver for every link, green where the
+                   message was delivered, red where it was lost, amber where an older message was kept
+                   (:func:`madp.data_schema.foxglove_viz.links_message`).
 
 Every robot has one stable colour (:func:`robot_colors`, golden-ratio steps around the HSV hue
 wheel, independent of N) shared by its sphere, label, cell outline, path and samples. Within every
@@ -65,6 +69,7 @@ from madp.data_schema.foxglove_viz import (
     _timestamp,
     actions_message,
     grid_message,
+    links_message,
 )
 from madp.io.atomic import atomic_path
 from madp.render import robot_colors
@@ -75,6 +80,7 @@ TOPIC_VORONOI = "/voronoi"
 TOPIC_TRAJECTORIES = "/trajectories"
 TOPIC_ROLLOUT_ACTIONS = "/actions"
 TOPIC_SAMPLES = "/samples"
+TOPIC_LINKS = "/network/links"
 #: Name of the file's metadata record.
 METADATA_NAME = "madp.rollout"
 #: Most points drawn per robot path.
@@ -327,6 +333,7 @@ def write_rollout_mcap(
     every: int = 1,
     title: str = "",
     extra_metadata: Optional[dict] = None,
+    links: Optional[np.ndarray] = None,
 ) -> dict:
     """Write one evaluation rollout as a Foxglove-viewable MCAP file (see the module docstring).
 
@@ -346,6 +353,7 @@ def write_rollout_mcap(
         extra_metadata: more ``{key: value}`` for the metadata record (MADP: its
             :class:`madp.policies.SamplingSettings`, ``sampler``, ``sampling_steps``, ``eta``, …,
             ``select``, ``candidates``).
+        links: optional ``[T+1, N, N]`` int8, the network's links at steps 0..T (``madp.sim.rollout.Links``).
 
     Returns:
         ``{"path": str, "bytes": file size, "messages": total messages, "topics": {topic: count}}``.
@@ -387,6 +395,8 @@ def write_rollout_mcap(
     scene_topics = [TOPIC_ROBOTS, TOPIC_VORONOI, TOPIC_TRAJECTORIES, TOPIC_ROLLOUT_ACTIONS]
     if samples is not None:
         scene_topics.append(TOPIC_SAMPLES)
+    if links is not None:
+        scene_topics.append(TOPIC_LINKS)
 
     final = Path(os.fspath(path))
     counts: dict[str, int] = {}
@@ -427,6 +437,8 @@ def write_rollout_mcap(
                     emit(TOPIC_SAMPLES, log_time, samples_scene(fans, colors, log_time))
                 else:
                     emit(TOPIC_SAMPLES, log_time, _delete_all(log_time))
+            if links is not None:
+                emit(TOPIC_LINKS, log_time, links_message(p, links[t], log_time))
 
         from madp import __version__
 
@@ -454,6 +466,7 @@ def write_rollout_mcap(
 
 __all__ = [
     "METADATA_NAME",
+    "TOPIC_LINKS",
     "TOPIC_ROLLOUT_ACTIONS",
     "TOPIC_SAMPLES",
     "TOPIC_TRAJECTORIES",

@@ -153,6 +153,14 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
                                    controllers, summary["groups_meta"], colors, suite))
     elif suite == "cities":
         record(plot_cities_heatmap(suite_dir / "cities_heatmap.png", summary, suite))
+    elif suite == "faults":
+        from madp.sim import SimParams
+
+        from .faults_plot import plot_faults
+
+        record(plot_faults(suite_dir / "faults.png", column(results, "final_cost").astype(float),
+                           column(results, "group"), column(results, "controller"), controllers, colors, suite,
+                           SimParams().dt_s))
     elif suite == "symmetry":
         record(plot_symmetry(suite_dir / "symmetry.png", summary["symmetry"], colors, suite))
     elif suite == "scale":

@@ -40,7 +40,7 @@ from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, 
 from madp.errors import InputError, SettingError
 from madp.policies import SamplingSettings
 from madp.sim import CoverageEnv
-from madp.sim.rollout import Actions, Costs, Hook, Positions, Samples, Timing, act_alone, run
+from madp.sim.rollout import Actions, Costs, Hook, Links, Positions, Samples, Timing, act_alone, run
 
 from .suites import EnvSpec, only_groups, suite_envs
 
@@ -114,14 +114,14 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     """Roll one controller out on one environment; write its job file (and an MCAP if ``record``, an
     MP4 if ``video``)."""
     scenario = spec.scenario()
-    env = CoverageEnv(scenario)
+    env = CoverageEnv(scenario, network=spec.network)
     ctrl = cfg.controller(controller, spec)
     info, steps = controller_info(controller), cfg.steps
     costs, timing = Costs(steps), Timing(steps)
     hooks: list[Hook] = [costs, timing]
     if record:
-        positions, actions = Positions(steps), Actions(steps)
-        hooks += [positions, actions]
+        positions, actions, links = Positions(steps), Actions(steps), Links(steps)
+        hooks += [positions, actions] + ([links] if spec.network is not None else [])
         if info.samples:
             import torch
 
@@ -143,12 +143,18 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
                            positions.positions_m[0], actions.actions_mps[0], controller, env.params.dt_s,
                            samples_mps=samples.samples_mps if info.samples else None, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
-                           extra_metadata=info.settings(cfg.sampling))
+                           extra_metadata={**info.settings(cfg.sampling), **_network_metadata(spec)},
+                           links=links.links if spec.network is not None else None)
     if video:
         frames.write()
     _save_job(job_path(suite_dir, spec, controller), costs.cost[0], timing.step_s, env.num_robots,
               len(scenario.features))
     return {"key": spec.key, "controller": controller}
+
+
+def _network_metadata(spec: EnvSpec) -> dict:
+    """The network's settings for a recording's metadata (``network.loss``, …), none without one."""
+    return {} if spec.network is None else {f"network.{k}": v for k, v in spec.network.as_dict().items()}
 
 
 def _save_job(job_file: Path, costs: np.ndarray, step_s: np.ndarray, num_robots: int, num_features: int) -> None:
@@ -168,7 +174,7 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
     environments whose keys are in ``video`` are filmed (MP4), in the batch, so filming changes no result."""
     from madp.policies import noise_generator
 
-    envs = [CoverageEnv(s.scenario()) for s in specs]
+    envs = [CoverageEnv(s.scenario(), network=s.network) for s in specs]
     if len({e.num_robots for e in envs}) != 1:
         raise ValueError("run_batch: environments of one batch must have the same number of robots")
     ctrl = cfg.controller(controller, specs[0])

@@ -16,6 +16,8 @@
 | symmetry | {line,square}_d4-{g}, g = 0..7                 | the launch suite's line and square    |
 |         | (not part of all)                               | environments and their 7 images under |
 |         |                                                 | the world's rotations and reflections |
+| faults  | ideal, loss_10, loss_30, loss_50, delay_1s,      | the uniform suite's environments, each |
+|         | delay_5s, fail_25, noise_5m (not part of all)   | group over its network (:data:`FAULTS`) |
 
 Seeds: an environment's scenario seed is a hash of (suite, group, index) with bit 62 set, and
 dataset seeds always have it clear (:mod:`madp.datagen.plan`), so evaluation never replays a
@@ -34,10 +36,25 @@ import numpy as np
 from madp.errors import InputError, SettingError
 from madp.sim import Scenario, SimParams
 from madp.sim.launch import D4_SIZE
+from madp.sim.network import NetworkSettings
 
 EVAL_SEED_BIT = 1 << 62
 SUITES = ("uniform", "sigma", "cities", "launch", "scale")
-EXTRA_SUITES = ("symmetry",)  # diagnostic suites, run by name only (not by ``all``)
+EXTRA_SUITES = ("symmetry", "faults")  # diagnostic suites, run by name only (not by ``all``)
+#: Steps a kept message may outlive its delay in the faults suite (1 s): a lost message is bridged by
+#: the sender's last one for up to a second.
+FAULTS_KEEP_STEPS = 5
+#: The faults suite's groups: the network between the robots (:mod:`madp.sim.network`) of each.
+FAULTS = {
+    "ideal": NetworkSettings(),
+    "loss_10": NetworkSettings(loss=0.1, max_age_steps=FAULTS_KEEP_STEPS),
+    "loss_30": NetworkSettings(loss=0.3, max_age_steps=FAULTS_KEEP_STEPS),
+    "loss_50": NetworkSettings(loss=0.5, max_age_steps=FAULTS_KEEP_STEPS),
+    "delay_1s": NetworkSettings(delay_steps=5, max_age_steps=5 + FAULTS_KEEP_STEPS),
+    "delay_5s": NetworkSettings(delay_steps=25, max_age_steps=25 + FAULTS_KEEP_STEPS),
+    "fail_25": NetworkSettings(fail_fraction=0.25, fail_step=200),
+    "noise_5m": NetworkSettings(position_noise_m=5.0),
+}
 SYMMETRY_LAYOUTS = ("line", "square")
 SIGMA_RANGES = ((30, 40), (20, 30), (10, 20), (5, 10))
 LAUNCHES = {"uniform": None, "square": (115.25, 115.25, 217.25, 217.25), "line": (0.0, 96.0, 1024.0, 352.0)}
@@ -65,12 +82,15 @@ class EnvSpec:
     launch: str = "uniform"
     city_file: str = ""
     d4: int = 0  # element of the world's symmetry group applied to the scenario (madp.sim.launch)
+    network: NetworkSettings | None = None  # the network between the robots (None: they read the true state)
 
     @property
     def seed(self) -> int:
         """The scenario seed; an image of the symmetry suite shares its launch environment's."""
         if self.suite == "symmetry":
             return eval_seed("launch", self.launch, self.index)
+        if self.suite == "faults":  # the uniform suite's environments
+            return eval_seed("uniform", "uniform", self.index)
         return eval_seed(self.suite, self.group, self.index)
 
     @property
@@ -128,6 +148,8 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
     if suite == "symmetry":
         return [EnvSpec(suite, f"{name}_d4-{g}", i, base, launch=name, d4=g)
                 for name in SYMMETRY_LAYOUTS for g in range(D4_SIZE) for i in range(num_envs)]
+    if suite == "faults":
+        return [EnvSpec(suite, name, i, base, network=net) for name, net in FAULTS.items() for i in range(num_envs)]
     if suite == "cities":
         from .cities import load_city_dir
 

@@ -139,6 +139,23 @@ class Samples(Hook):
             self.samples_mps[t] = self.draw(envs[0]).transpose(1, 0, 2)
 
 
+class Links(Hook):
+    """``links [steps + 1, N, N]`` int8: what happened on every link of environment 0's network at every
+    step (``madp.sim.network.Network.links``: delivered, lost, kept or nothing; receiver i, sender j)."""
+
+    def __init__(self, steps: int):
+        self.steps = steps
+
+    def start(self, envs):
+        n = envs[0].num_robots
+        self.links = np.zeros((self.steps + 1, n, n), np.int8)
+        self.stepped(0, envs)
+
+    def stepped(self, t, envs):
+        if envs[0].network is not None:
+            self.links[t] = envs[0].network.links("position")
+
+
 class Convergence(Hook):
     """``converged_at``: the first step t (1-based, as the library counts) whose actions were all zero
     (environment 0), or None."""
