@@ -46,6 +46,7 @@ def rollout(
     device: str = typer.Option("cpu", help="Where a learned controller's model runs: cpu | cuda | cuda:I | auto (cuda when there is one)."),
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
+    network: Optional[str] = typer.Option(None, help="A network between the robots: a group of the faults suite (ideal, loss_30, delay_1s, fail_25, noise_5m, ...) or NAME=VALUE items, e.g. loss=0.3,delay_steps=5,max_age_steps=10,missing=keep,fail_fraction=0.25,fail_step=200,position_noise_m=5,seed=0 (default: none, every robot reads the true state)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import controller_info, make_controller
@@ -60,16 +61,25 @@ def rollout(
     device = resolve_device(device)  # checked, like the video path, before anything is read or run
     sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
     frames = [Frames(check_video_path(video), steps)] if video is not None else []
+    net = network_settings(network) if network is not None else None
     sc = Scenario.load(scenario)
     ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0,
                            sampling=sampling, device=device)
-    result = run(CoverageEnv(sc), ctrl, steps, frames)
+    result = run(CoverageEnv(sc, network=net), ctrl, steps, frames)
     write_json_atomic(out, result.to_json(controller))
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
                f" (converged at {result.converged_at}) -> {out}")
     for f in frames:
         v = f.write(progress=True)
         typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
+
+
+def network_settings(text: str):
+    """``--network``: a faults-suite group's network, or NAME=VALUE items (:meth:`NetworkSettings.parse`)."""
+    from madp.eval.suites import FAULTS
+    from madp.sim.network import NetworkSettings
+
+    return FAULTS[text] if text in FAULTS else NetworkSettings.parse(text)
 
 
 @app.command()

@@ -10,6 +10,7 @@ import numpy as np
 from madp.errors import SettingError
 from madp.render import FrameRenderer
 from madp.sim import CoverageEnv, Scenario, SimParams
+from madp.sim.network import NetworkSettings
 
 DEFAULT_MAX_STEPS = 600
 RENDER_MODES = ["rgb_array"]
@@ -53,8 +54,10 @@ class CoverageWorld:
     """
 
     def _configure(self, scenario, params: SimParams | None, max_steps: int, render_mode: str | None,
-                   render_size: int) -> int:
-        """Check and store the constructor's arguments; returns the number of robots."""
+                   render_size: int, network: NetworkSettings | None = None) -> int:
+        """Check and store the constructor's arguments; returns the number of robots. ``network``: the
+        network between the robots (:mod:`madp.sim.network`; default: a suite EnvSpec's own, else none)."""
+        self.network = network if network is not None else getattr(scenario, "network", None)
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise SettingError("render_mode", f"expected one of {RENDER_MODES} or None, got {render_mode!r}")
         if max_steps < 1:
@@ -70,7 +73,7 @@ class CoverageWorld:
         """Start an episode (the fixed scenario again, or the one of ``seed`` / drawn from ``rng``)."""
         scenario = episode_scenario(self.scenario, self.params, seed, rng)
         if self.sim is None or self.sim.scenario is not scenario:
-            self.sim = CoverageEnv(scenario)
+            self.sim = CoverageEnv(scenario, network=self.network)
             self._renderer = None
         else:
             self.sim.reset()

@@ -34,6 +34,7 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 from pettingzoo.utils import parallel_to_aec
 
+from madp.sim.network import NetworkSettings
 from madp.sim import SimParams
 
 from .base import DEFAULT_MAX_STEPS, RENDER_MODES, CoverageWorld, map_bounds
@@ -52,13 +53,19 @@ def agent_observation_space(params: SimParams) -> spaces.Dict:
     })
 
 
-def neighbour_table(positions_m: np.ndarray, comm_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Padded relative positions [N, K, 2] (nearest first) and mask [N, K] int8, K = max(N−1, 1)."""
+def neighbour_table(positions_m: np.ndarray, comm_radius_m: float,
+                    view: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Padded relative positions [N, K, 2] (nearest first) and mask [N, K] int8, K = max(N−1, 1), of each
+    robot's neighbours within r_c: from the robots' ``positions_m`` [N, 2], or, with ``view`` = (known
+    [N, N], held [N, N, 2]) (:meth:`madp.sim.CoverageEnv.neighbour_view`), from what each robot holds."""
     n = len(positions_m)
     k = max(n - 1, 1)
-    rel = positions_m[None, :, :] - positions_m[:, None, :]  # [i, j, 2] = x_j - x_i
+    held = positions_m[None, :, :] if view is None else view[1]
+    rel = held - positions_m[:, None, :]  # [i, j, 2] = x_j - x_i
     dist = np.linalg.norm(rel, axis=2)
     near = (dist < comm_radius_m) & ~np.eye(n, dtype=bool)
+    if view is not None:
+        near &= view[0]
     key = np.where(near, dist, np.inf)
     key[np.arange(n), np.arange(n)] = np.inf
     order = np.argsort(key, axis=1, kind="stable")[:, :k]  # neighbours first, nearest first
@@ -76,8 +83,9 @@ class CoverageParallelEnv(CoverageWorld, ParallelEnv):
     metadata = {"name": "coverage_v0", "render_modes": RENDER_MODES, "render_fps": 5, "is_parallelizable": True}
 
     def __init__(self, scenario=None, params: SimParams | None = None, max_steps: int = DEFAULT_MAX_STEPS,
-                 render_mode: str | None = None, render_size: int = 512, seed: int | None = None):
-        n = self._configure(scenario, params, max_steps, render_mode, render_size)
+                 render_mode: str | None = None, render_size: int = 512, seed: int | None = None,
+                 network: NetworkSettings | None = None):
+        n = self._configure(scenario, params, max_steps, render_mode, render_size, network)
         self.possible_agents = [f"robot_{i}" for i in range(n)]
         self.agents: list[str] = []
         self.np_random, self.np_random_seed = seeding.np_random(seed)
@@ -127,8 +135,10 @@ class CoverageParallelEnv(CoverageWorld, ParallelEnv):
     # --- views ---------------------------------------------------------------------------------
     def _observations(self) -> dict:
         maps = self.sim.observations()
-        table, mask = neighbour_table(self.sim.positions_m, self.params.comm_radius_m)
-        pos = self.sim.positions_m.astype(np.float32)
+        own = self.sim.estimates_m()  # what each robot knows of itself and of the others
+        table, mask = neighbour_table(own, self.params.comm_radius_m,
+                                      self.sim.neighbour_view() if self.sim.network is not None else None)
+        pos = own.astype(np.float32)
         return {a: {"maps": maps[i], "position": pos[i], "neighbours": table[i], "neighbour_mask": mask[i]}
                 for i, a in enumerate(self.possible_agents)}
 

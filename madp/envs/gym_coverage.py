@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from madp.sim.network import NetworkSettings
 from madp.sim import SimParams
 
 from .base import DEFAULT_MAX_STEPS, RENDER_MODES, CoverageWorld, map_bounds
@@ -26,8 +27,8 @@ class CoverageGymEnv(CoverageWorld, gym.Env):
     metadata = {"render_modes": RENDER_MODES, "render_fps": 5}
 
     def __init__(self, scenario=None, params: SimParams | None = None, max_steps: int = DEFAULT_MAX_STEPS,
-                 render_mode: str | None = None, render_size: int = 512):
-        n = self._configure(scenario, params, max_steps, render_mode, render_size)
+                 render_mode: str | None = None, render_size: int = 512, network: NetworkSettings | None = None):
+        n = self._configure(scenario, params, max_steps, render_mode, render_size, network)
         low, high = map_bounds(self.params)
         u, w = float(self.params.max_speed_mps), float(self.params.world_size)
         self.observation_space = spaces.Dict({
@@ -55,4 +56,4 @@ class CoverageGymEnv(CoverageWorld, gym.Env):
         return np.asarray(controller(self.sim), dtype=np.float64)  # float64: the simulator's precision
 
     def _observation(self) -> dict:
-        return {"positions": self.sim.positions_m.astype(np.float32), "maps": self.sim.observations()}
+        return {"positions": self.sim.estimates_m().astype(np.float32), "maps": self.sim.observations()}

@@ -36,7 +36,7 @@ each robot's inbox holds exactly its neighbours' current states.
 from __future__ import annotations
 
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
@@ -121,6 +121,23 @@ class NetworkSettings:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    @classmethod
+    def parse(cls, text: str) -> "NetworkSettings":
+        """Settings from ``"loss=0.3,delay_steps=5,missing=drop"`` (fields of this class; the rest default)."""
+        types = {f.name: f.type for f in fields(cls)}
+        values: dict = {}
+        for item in filter(None, (t.strip() for t in text.split(","))):
+            name, eq, value = item.partition("=")
+            name = name.strip()
+            if not eq or name not in types:
+                raise SettingError("network", f"expected NAME=VALUE items with NAME one of {', '.join(types)}, got {item!r}")
+            try:
+                values[name] = value.strip() if name == "missing" else (
+                    float(value) if "float" in types[name] else int(value))
+            except ValueError:
+                raise SettingError("network", f"{name}: expected a number, got {value.strip()!r}") from None
+        return cls(**values)
 
 
 @dataclass(frozen=True)
