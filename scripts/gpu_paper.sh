@@ -258,7 +258,7 @@ if [[ $DAGGER_N != 0 ]]; then
 fi
 
 # --- 7. the shipped form: float16, split into parts of at most --part-mib -------------------------------------
-stage fp16 "$PY" -m madp.policies.parts "$CKPT" "$RESULTS/policy-fp16.safetensors" --part-mib "$PART_MIB"
+stage fp16 "$PY" -m madp.policies.fp16 "$CKPT" "$RESULTS/policy-fp16.safetensors" --part-mib "$PART_MIB"
 SHIPPED=$RESULTS/policy-fp16.safetensors
 [[ -f $SHIPPED ]] || SHIPPED=$RESULTS/policy-fp16.safetensors.parts.json
 
