@@ -1,4 +1,4 @@
-"""Choosing among MADP's samples (issue 26): every robot draws K candidate actions in one batched
+"""Choosing among MADP's samples: every robot draws K candidate actions in one batched
 sampling call (K copies of the swarm's state, copy k with its own noise), and one action is kept.
 
 Candidate k of robot i is robot i's action in copy k; copy k as a whole is a joint sample (a swarm

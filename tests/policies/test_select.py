@@ -1,4 +1,4 @@
-"""Choosing among MADP's samples (issue 26, madp/policies/select.py).
+"""Choosing among MADP's samples (madp/policies/select.py).
 
 The contracts: the oracle keeps the joint sample of lowest true J after the step; the local rules
 (``cell``, ``mppi``) see only a robot's own map and its neighbours within r_c; ``mppi`` spans the
