@@ -17,7 +17,7 @@
 #
 # Score = (killed + timeout) / (all mutants - skipped), as mutmut's badge computes it. Survivors
 # still need a human: some are equivalent (the mutated code computes the same thing); list those,
-# with the reason, in the README's testing section.
+# with the reason, in docs/reports/2026-12-02-mutation-testing.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)

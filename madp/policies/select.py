@@ -48,7 +48,7 @@ from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
-#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
+#: The rule MADP uses unless told otherwise (docs/concepts/sampling.md).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
 DEFAULT_CANDIDATES = 4
