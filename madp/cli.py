@@ -30,7 +30,7 @@ scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Sc
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 # MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; README, Choosing among MADP's samples): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
+SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; docs/concepts/sampling.md): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
 CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
@@ -101,7 +101,7 @@ def datagen(
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
-    launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; README Datasets)."),
+    launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; docs/guides/datasets.md)."),
     ray: Optional[str] = ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
@@ -179,7 +179,7 @@ def train(
     augment: Optional[str] = typer.Option(None, help="none | d4: each training sample as one of its 8 rotations/reflections."),
     init: Optional[Path] = typer.Option(None, help="Start from this policy.safetensors' weights (same model and preset; fresh optimizer), e.g. the previous DAgger round."),
     edge_weight: Optional[str] = typer.Option(None, help="LPAC-K3's graph: binary (the library's, default) | gaussian."),
-    compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (README, Training speed)."),
+    compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (docs/reports/2026-12-02-training-speed.md)."),
     stop_after_minutes: Optional[float] = typer.Option(None, help="Stop (with a checkpoint) at the first optimizer step after this many minutes of training (a time budget; the lr schedule is not shortened)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
 ) -> None:
@@ -218,7 +218,7 @@ def eval_cmd(
     controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint); KIND:NAME=PATH adds a learned controller with its own checkpoint, e.g. madp:r4=runs/r4/policy.safetensors (shown as madp:r4)."),
     lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
     madp: Optional[Path] = typer.Option(None, help="MADP policy.safetensors (default: the shipped one)."),
-    sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (README, Fast sampling)."),
+    sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (docs/reports/2026-12-01-sampler-steps.md)."),
     sampling_steps: Optional[int] = typer.Option(None, min=1, help="Sampler steps S for MADP; default: the measured best."),
     ddim_steps: Optional[int] = typer.Option(None, min=1, hidden=True, help="Old spelling of --sampler ddim --sampling-steps S."),
     eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),

@@ -79,7 +79,7 @@ def bench_train_cmd(
     ablate: bool = typer.Option(False, help="Instead: the speed options one at a time (MADP and LPAC-K3, cpu preset, 1 thread)."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
-    """Training samples/s by phase (data, forward, backward, optimizer) beside the matmul peak (README, Training speed)."""
+    """Training samples/s by phase (data, forward, backward, optimizer) beside the matmul peak (docs/reports/2026-12-02-training-speed.md)."""
     from madp.training.bench import format_train_bench, parse_cases, run_train_bench
 
     rows = run_train_bench(parse_cases(models, presets, threads, ablate), data, steps=steps, warmup=warmup)

@@ -46,7 +46,7 @@ class ControllerInfo:
     """One controller of the registry.
 
     ``kind``: :data:`CLASSICAL_KIND`, or the checkpoint kind a learned controller loads.
-    ``display``: its name in tables and plot legends; ``description``: its name in prose (the README's
+    ``display``: its name in tables and plot legends; ``description``: its name in prose (the reports'
     results); ``color``: its colour in plots. ``paper``: the controller of the paper whose numbers it
     is compared with (SPEC §5), or None. ``mode``: MADP's execution (``"decentralized"`` /
     ``"centralized"``). ``default``: evaluated when ``madp eval`` is not given ``--controllers``.

@@ -5,7 +5,7 @@
 #   -> the checkpoint in float16, split into parts of at most 16 MiB -> madp eval uniform,cities with
 #   MADP decentralized on the GPU -> madp bench infer (latency on the GPU) -> RESULTS_DIR.
 #
-# Usage: bash scripts/gpu_paper.sh RESULTS_DIR [flags]      (run from anywhere; README, "The paper's model on a GPU")
+# Usage: bash scripts/gpu_paper.sh RESULTS_DIR [flags]      (run from anywhere; docs/guides/gpu.md)
 #
 # RESULTS_DIR (new or empty) receives at most --max-files files of at most --max-file-mib MiB each:
 #   provenance.json                      commit, date, device, torch/CUDA, every command with its stage time,
@@ -258,7 +258,7 @@ if [[ $DAGGER_N != 0 ]]; then
 fi
 
 # --- 7. the shipped form: float16, split into parts of at most --part-mib -------------------------------------
-stage fp16 "$PY" -m madp.policies.parts "$CKPT" "$RESULTS/policy-fp16.safetensors" --part-mib "$PART_MIB"
+stage fp16 "$PY" -m madp.policies.fp16 "$CKPT" "$RESULTS/policy-fp16.safetensors" --part-mib "$PART_MIB"
 SHIPPED=$RESULTS/policy-fp16.safetensors
 [[ -f $SHIPPED ]] || SHIPPED=$RESULTS/policy-fp16.safetensors.parts.json
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Mutation testing of the core with mutmut 3 (issue 17). Not part of CI: the whole campaign takes
+# Mutation testing of the core with mutmut 3. Not part of CI: the whole campaign takes
 # an hour or more on 2 cores. What is mutated and which tests run are configured in pyproject.toml,
 # [tool.mutmut]; this script runs mutmut in a scratch copy (runs/mutation/work, so the checkout never
 # holds a mutants/ tree), then writes every mutant that was not killed, with its diff, to
@@ -17,7 +17,7 @@
 #
 # Score = (killed + timeout) / (all mutants - skipped), as mutmut's badge computes it. Survivors
 # still need a human: some are equivalent (the mutated code computes the same thing); list those,
-# with the reason, in the README's testing section.
+# with the reason, in docs/reports/2026-12-02-mutation-testing.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)

@@ -2,7 +2,7 @@
 # Expert relabelling (DAgger) rounds on top of round-0 checkpoints (scripts/train_shipped.sh calls this):
 # round k lets the round k-1 policy drive (madp datagen --policy, beta 0), labels the states it visits
 # with the clairvoyant expert, and warm-starts round k from round k-1 on the expert data plus every
-# relabelled set so far (each relabelled set x4 per epoch). README, Policy quality, has what each round bought.
+# relabelled set so far (each relabelled set x4 per epoch). docs/reports/2026-12-03-relabelling.md has what each round bought.
 # Run from the repository root with MADP0/LPAC0 pointing at round-0 policies (LPAC-K3's is trained if missing).
 set -euo pipefail
 DATA=${DATA:-/work/data100k}

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# MADP rounds 3-5 (README, Policy quality), on top of the round-2 policy of scripts/train_dagger.sh:
+# MADP rounds 3-5 (docs/reports/2026-12-03-relabelling.md), on top of the round-2 policy of scripts/train_dagger.sh:
 #   round 3 relabels the round-2 policy's own rollouts on narrow features (sigma 5-40 m);
 #   round 4 adds expert states of 128-robot swarms (datasets of several swarm sizes train together);
 #   round 5 relabels the round-4 policy's own 128-robot rollouts (F = 16 and 32). Round 5 is shipped.

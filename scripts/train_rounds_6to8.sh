@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# MADP rounds 6-8 (README, Exploration from packed starts and Policy quality), each warm-started from the
+# MADP rounds 6-8 (docs/reports/2026-12-03-packed-starts.md and 2026-12-03-relabelling.md), each warm-started from the
 # one before on the mix so far plus the new sets:
 #   round 6: the round-5 policy's own rollouts from packed training launches (random boxes, bands in any
 #            orientation, clusters: `madp datagen --launch packed`) and from uniform launches, relabelled by

@@ -21,8 +21,8 @@ DATA=$DATA MADP0=runs/madp-cpu/checkpoints/best/policy.safetensors LPAC0=runs/lp
   MADP_ROUNDS=2 LPAC_ROUNDS=1 bash scripts/train_dagger.sh
 mkdir -p madp/checkpoints
 DATA=$DATA MADP2=runs/madp-r2/checkpoints/best/policy.safetensors bash scripts/train_rounds_3to5.sh
-# Rounds 6-8: packed launches and --augment d4, then narrow features and 128-robot swarms (README,
-# Exploration from packed starts and Policy quality)
+# Rounds 6-8: packed launches and --augment d4, then narrow features and 128-robot swarms
+# (docs/reports/2026-12-03-packed-starts.md and 2026-12-03-relabelling.md)
 R5=runs/madp-r5/checkpoints/best/policy.safetensors bash scripts/train_rounds_6to8.sh
 cp runs/madp-r8/checkpoints/best/policy.safetensors madp/checkpoints/madp-cpu.safetensors
 cp runs/lpac-r1/checkpoints/best/policy.safetensors madp/checkpoints/lpac-cpu.safetensors

@@ -1,6 +1,6 @@
-"""The shape of the house (issue 27), checked on the source: one definition of the controller names,
-inference never imports training, small modules, a thin command line, and ``__init__.py`` files that
-only re-export."""
+"""The shape of the house, checked on the source: one definition of the controller names, inference
+never imports training, small modules, a thin command line, ``__init__.py`` files that only re-export,
+and no import circle among madp's modules."""
 
 from __future__ import annotations
 
@@ -65,3 +65,84 @@ def test_controller_names_are_listed_only_in_the_registry(path):
             named = {x.value for x in items if isinstance(x, ast.Constant) and x.value in NAMES}
             assert len(named) < 2 or named <= set(CHECKPOINT_KINDS), \
                 f"{_rel(path)}:{node.lineno} lists controllers {sorted(named)}"
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(MADP.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imported_modules(path: Path, known: set[str]) -> set[str]:
+    """The madp modules ``path`` imports, anywhere in the file (module level and inside functions).
+    ``from P import x`` counts as importing ``P.x`` when that is a module, else ``P``; a name that is
+    not a module counts as its nearest enclosing module."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(_tree(path)):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(up + ([node.module] if node.module else []))
+            found.update(f"{base}.{a.name}" if f"{base}.{a.name}" in known else base for a in node.names)
+    out = set()
+    for m in found:
+        while m and m not in known:
+            m = m.rpartition(".")[0]
+        if m and m != name:
+            out.add(m)
+    return out
+
+
+def import_cycles() -> list[list[str]]:
+    """The import circles among madp's modules: each strongly connected set of two or more modules of
+    the graph "module imports module" (every import statement, function-level ones included)."""
+    known = {_module_name(p) for p in MODULES}
+    graph = {_module_name(p): sorted(_imported_modules(p, known)) for p in MODULES}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return cycles
+
+
+def test_no_import_circle_among_madp_modules():
+    assert import_cycles() == []
+
+
+def test_the_import_circle_check_finds_a_circle(tmp_path, monkeypatch):
+    """The check itself: two modules that import each other, one inside a function, are a circle."""
+    pkg = tmp_path / "madp"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from madp import b\n")
+    (pkg / "b.py").write_text("def f():\n    from .a import x\n")
+    monkeypatch.setitem(globals(), "MADP", pkg)
+    monkeypatch.setitem(globals(), "MODULES", sorted(pkg.rglob("*.py")))
+    assert import_cycles() == [["madp.a", "madp.b"]]

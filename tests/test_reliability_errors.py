@@ -1,6 +1,6 @@
 """Every user-facing failure ends in one line ``madp: error: …`` naming the file or flag, exit 2.
 
-The cases of issue 15: damaged or foreign checkpoints on ``train --resume`` (never torch's advice to
+The failure cases: damaged or foreign checkpoints on ``train --resume`` (never torch's advice to
 load less safely), option values that would divide by zero or run no step, scenarios whose J(0) is 0,
 sizes that cannot be allocated, absurd sample counts, typer's range errors.
 """

@@ -1,5 +1,5 @@
 """One job per output directory: the advisory lock, workers that die with their parent, temporary
-names unique per writer (issue 15, "a second writer")."""
+names unique per writer ("a second writer")."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``--overwrite`` removes only what madp wrote; any other file makes it refuse, naming the file, and
-nothing is removed (issue 15, "lost files": it used to delete every file in the directory)."""
+nothing is removed ("lost files": it used to delete every file in the directory)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Markdown tables of a suite's summary (:func:`madp.eval.stats.summarize`): ``summary.md`` and the README."""
+"""Markdown tables of a suite's summary (:func:`madp.eval.stats.summarize`): ``summary.md`` and the results report."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ def _md_row(cells: Sequence[str]) -> str:
 
 
 def markdown_table(summary: Mapping[str, Any], suite: str | None = None) -> str:
-    """Markdown tables of a :func:`summarize` dict (for ``summary.md`` and the README).
+    """Markdown tables of a :func:`summarize` dict (for ``summary.md`` and the results report).
 
     1. Final cost: rows = groups then ``all`` (the whole suite), columns = ``n`` (environments; a
        range when controllers differ), one column per controller with ``mean ± SE [lo, hi]`` (95 %

@@ -162,7 +162,7 @@ class LPACConfig:
     action_dim: int = 2
     edge_weight: str = "binary"
     """``"binary"``: w_ij = 1 for d_ij < r_c, the unweighted graph the library trains LPAC-K3 on
-    (default; README, Policy quality, has the measured ablation); ``"gaussian"``:
+    (default; docs/reports/2026-12-03-relabelling.md has the measured ablation); ``"gaussian"``:
     w_ij = exp(-d_ij^2 / r_c^2) (``CoverageEnvUtils.get_weights``; the checkpoints shipped before
     2026-12 carry it in their config). No self loops; TAGConv normalises symmetrically
     (D^-1/2 A D^-1/2)."""

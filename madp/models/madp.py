@@ -78,7 +78,7 @@ class MADP(ActionStatsMixin):
     """
 
     #: Row length (tokens) of the packed layout of :meth:`sample_decentralized`: 16, 24, 32, 48 and 64 were
-    #: timed (cpu and paper presets, 1 and 8 swarms); 32 was fastest in each (README, Fast sampling).
+    #: timed (cpu and paper presets, 1 and 8 swarms); 32 was fastest in each (docs/reports/2026-12-01-sampler-steps.md).
     decentralized_row_tokens: int = 32
 
     def __init__(self, config: MADPConfig | None = None):

@@ -45,7 +45,7 @@ __all__ = ["SAMPLERS", "DEFAULT_SAMPLER", "DEFAULT_SAMPLING_STEPS", "DDIMSampler
 
 #: Sampler names accepted by ``--sampler``.
 SAMPLERS = ("ddim", "dpm++")
-#: The evaluation default: the (sampler, S) measured by ``madp bench infer`` (README "Fast sampling").
+#: The evaluation default: the (sampler, S) measured by ``madp bench infer`` (docs/reports/2026-12-01-sampler-steps.md).
 DEFAULT_SAMPLER = "dpm++"
 DEFAULT_SAMPLING_STEPS = 3
 

@@ -22,6 +22,8 @@ from torch import nn
 from madp.errors import InputError
 from madp.models import MADP, LPACConfig, MADPConfig
 
+from .parts import read_parts
+
 SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
 
 
@@ -45,8 +47,6 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
 
     ``path`` may also name a checkpoint split into float16 parts (:mod:`madp.policies.parts`: its
     index or a part); weights of any float dtype load into the float32 model."""
-    from .parts import read_parts
-
     path = Path(path)
     joined = read_parts(path, device)  # a checkpoint split into float16 parts (index or a part), else None
     if joined is not None:

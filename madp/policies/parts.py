@@ -14,7 +14,9 @@ whole, without an index. :func:`read_parts` takes the index or any part, checks 
 and sha256 and the whole's, and returns the metadata and the tensors, floats as float32 (CPU
 inference runs in float32). A missing, truncated or damaged part is a one-line error naming it.
 
-``python -m madp.policies.parts POLICY OUT [--part-mib 16]`` writes OUT (or OUT's index and parts).
+``python -m madp.policies.fp16 POLICY OUT [--part-mib 16]`` writes OUT (or OUT's index and parts):
+:mod:`madp.policies.fp16`. This module reads and writes the file format only; building a model from
+the joined file is :mod:`madp.policies.checkpoint`'s job, which imports this one (never the reverse).
 """
 
 from __future__ import annotations
@@ -174,34 +176,3 @@ def write_fp16(model: nn.Module, metadata: dict[str, str], out: str | Path,
     doc = {"format": FORMAT, "file": out.name, "bytes": len(blob), "sha256": _sha256(blob), "parts": parts}
     write_text_atomic(index, json.dumps(doc, indent=1) + "\n")  # last: parts without an index are not a checkpoint
     return [index, *written]
-
-
-def main(argv: list[str] | None = None) -> int:
-    import argparse
-    import sys
-
-    from safetensors import safe_open
-
-    from .checkpoint import load_policy
-
-    ap = argparse.ArgumentParser(prog="python -m madp.policies.parts",
-                                 description="Write a policy checkpoint in float16, split into parts if larger than --part-mib.")
-    ap.add_argument("policy", type=Path, help="policy.safetensors to convert")
-    ap.add_argument("out", type=Path, help="the float16 file to write (or its index OUT.parts.json and parts OUT.000, ...)")
-    ap.add_argument("--part-mib", type=float, default=MAX_PART_BYTES / (1 << 20), help="largest part (MiB; default 16)")
-    args = ap.parse_args(argv)
-    try:
-        model, _ = load_policy(args.policy)
-        with safe_open(str(args.policy), framework="pt") as f:
-            metadata = dict(f.metadata() or {})
-        files = write_fp16(model, metadata, args.out, int(args.part_mib * (1 << 20)))
-    except (ValueError, OSError) as e:
-        print(f"madp: error: {e}", file=sys.stderr)
-        return 2
-    for p in files:
-        print(f"{p}  {p.stat().st_size} bytes")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

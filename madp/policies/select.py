@@ -1,4 +1,4 @@
-"""Choosing among MADP's samples (issue 26): every robot draws K candidate actions in one batched
+"""Choosing among MADP's samples: every robot draws K candidate actions in one batched
 sampling call (K copies of the swarm's state, copy k with its own noise), and one action is kept.
 
 Candidate k of robot i is robot i's action in copy k; copy k as a whole is a joint sample (a swarm
@@ -48,7 +48,7 @@ from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
-#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
+#: The rule MADP uses unless told otherwise (docs/concepts/sampling.md).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
 DEFAULT_CANDIDATES = 4

@@ -1,6 +1,6 @@
 """Compiled kernels of the simulator's hot paths (numba, single-threaded, ``fastmath`` off).
 
-Three kernels (docs/sim-speed.md):
+Three kernels (docs/reports/2026-12-02-sim-speed.md):
 
 - :func:`cell_sums` — each robot's Voronoi cell among its competitors, clipped to its box, walked
   column by column outward from the site (a convex cell's columns are one interval around it). Per

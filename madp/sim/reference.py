@@ -63,7 +63,7 @@ def import_library(thread_limit: str | None = None):
     if "coverage_control" in sys.modules:
         return sys.modules["coverage_control"]
     if importlib.util.find_spec("coverage_control") is None:
-        raise ImportError("coverage_control is not installed (pip install 'madp[reference]', see the README)")
+        raise ImportError("coverage_control is not installed (pip install 'madp[reference]', see docs/reports/benchmarks.md)")
     global thread_limit_at_import
     before = os.environ.get(THREAD_LIMIT_ENV)
     try:
@@ -75,7 +75,7 @@ def import_library(thread_limit: str | None = None):
         import coverage_control.algorithms  # noqa: F401
     except (ImportError, RuntimeError, OSError) as e:
         raise ImportError(f"coverage_control does not import ({type(e).__name__}: {e}); install madp[reference] "
-                          "as the README's Benchmarks section says") from e
+                          "as docs/reports/benchmarks.md says") from e
     finally:
         if before is None:
             os.environ.pop(THREAD_LIMIT_ENV, None)

@@ -4,7 +4,7 @@
 early stop after 500 epochs without a 1e-4 improvement of the validation loss; LPAC-K3 with Adam,
 lr 1e-4, weight decay 1e-3 (the library's settings) — but *decoupled* (AdamW): with Adam's coupled L2
 decay every graph unit whose ReLU stopped firing had its weights driven to zero within a few hundred
-steps, and 20–60% of LPAC-K3's units were dead (README, Policy quality); same batch and stopping rule.
+steps, and 20–60% of LPAC-K3's units were dead (docs/reports/2026-12-03-relabelling.md); same batch and stopping rule.
 
 ``cpu``: the small models of :func:`madp.models.madp_config` / ``lpac_config`` ("cpu" preset),
 batch 32, a higher learning rate (small models tolerate it and must learn within ~2 hours on two

@@ -1,6 +1,6 @@
 """Action statistics (``madp.data_schema.action_stats``): exact, order-independent sums that match a
 float64 reference, and the refusals of the accumulator and of ``ActionStats.from_dict``, message for
-message (written against the mutants mutmut left alive, issue 17: an off-by-one in an exact integer
+message (written against the mutants mutmut left alive: an off-by-one in an exact integer
 sum vanishes in rounding everywhere except at a variance of exactly zero)."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Fuzz the MCAP and Parquet decoders: a shard truncated, bit-flipped, overwritten with random
 bytes, or well-formed but holding samples of the wrong types and shapes is read to the end, or
-refused with a one-line DataError naming it — never another exception (issue 15)."""
+refused with a one-line DataError naming it — never another exception."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Hugging Face datasets reads a Parquet dataset of madp datagen; the README's recipe decodes the same O as madp."""
+"""Hugging Face datasets reads a Parquet dataset of madp datagen; the guide's recipe decodes the same O as madp."""
 
 import re
 import textwrap
@@ -10,14 +10,14 @@ import numpy as np
 from madp.data_schema.dataset import iter_split, open_dataset
 from tests.test_reliability_errors import cli
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+GUIDE = Path(__file__).resolve().parents[2] / "docs" / "guides" / "datasets.md"
 
 
 def readme_recipe() -> str:
-    """The README's Python block that loads a dataset with ``datasets`` (exactly one)."""
-    blocks = [textwrap.dedent(b) for b in re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
+    """The guide's Python block that loads a dataset with ``datasets`` (exactly one)."""
+    blocks = [textwrap.dedent(b) for b in re.findall(r"```python\n(.*?)```", GUIDE.read_text(), re.S)
               if "load_dataset" in b]
-    assert len(blocks) == 1, f"expected one Hugging Face recipe in README.md, found {len(blocks)}"
+    assert len(blocks) == 1, f"expected one Hugging Face recipe in the guide, found {len(blocks)}"
     return blocks[0]
 
 
@@ -30,7 +30,7 @@ def test_readme_recipe_decodes_what_madp_decodes(tmp_path, monkeypatch):
     manifest = open_dataset("data")
     assert len(manifest.splits["train"].shards) > 1  # the rows of several shards, in their order
     ns: dict = {}
-    exec(compile(readme_recipe(), "README.md (datasets)", "exec"), ns)
+    exec(compile(readme_recipe(), "docs/guides/datasets.md (datasets)", "exec"), ns)
     ds, first = ns["ds"], ns["observations"]
     assert first.shape == (4, 4, 32, 32) and first.dtype == np.float16
     ours = {k: np.concatenate([getattr(b, k) for b in iter_split("data", manifest, "train")])

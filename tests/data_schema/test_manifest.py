@@ -3,7 +3,7 @@ version refusal and shard verification; and its validation contract, message for
 
 Every refusal of the module is a one-line ``"<file or field>: <what was expected>"`` that the CLI
 prints as is, so each contract case pins the *whole* message: a mutant that drops or changes the
-field name, the expectation, or the condition that raises fails here (issue 17, mutation survivors)."""
+field name, the expectation, or the condition that raises fails here (written against mutation survivors)."""
 
 from __future__ import annotations
 

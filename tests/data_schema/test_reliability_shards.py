@@ -1,5 +1,5 @@
 """convert, train and merge check every shard against the manifest (size, sha256, counts) before use
-(issue 15, "unchecked data": a Parquet shard with one row fewer converted into a dataset that verified)."""
+("unchecked data": a Parquet shard with one row fewer converted into a dataset that verified)."""
 
 from __future__ import annotations
 

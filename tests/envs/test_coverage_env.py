@@ -177,7 +177,7 @@ def test_shipped_madp_env_matches_madp_eval_on_a_city(tmp_path):
 
 @pytest.mark.slow
 def test_shipped_madp_600_steps_env_eval_and_rollout_agree(tmp_path):
-    """Issue 16's done-when: the env driven by the shipped MADP for 600 steps gives madp eval's
+    """The env driven by the shipped MADP for 600 steps gives madp eval's
     J(600)/J(0) for that scenario (same seed), and so does ``madp rollout`` on the scenario as a file."""
     import json
     import subprocess

@@ -1,4 +1,4 @@
-"""TorchRL: the README's PettingZooWrapper lines run as they stand, and TorchRL's own check_env_specs passes."""
+"""TorchRL: the environments guide's PettingZooWrapper lines run as they stand, and TorchRL's own check_env_specs passes."""
 
 import re
 from pathlib import Path
@@ -10,21 +10,21 @@ from torchrl.envs import PettingZooWrapper, check_env_specs
 from madp.envs import coverage_v0
 from madp.sim import SimParams
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+GUIDE = Path(__file__).resolve().parents[2] / "docs" / "guides" / "environments.md"
 # TorchRL warns that it tests PettingZoo 1.24.3 only; this file is what tests it on madp's version
 pytestmark = pytest.mark.filterwarnings("ignore:PettingZoo in TorchRL is tested:UserWarning")
 
 
 def readme_snippet() -> str:
-    """The README's Python block that wraps coverage_v0 in TorchRL (exactly one)."""
-    blocks = [b for b in re.findall(r"```python\n(.*?)```", README.read_text(), re.S) if "PettingZooWrapper" in b]
-    assert len(blocks) == 1, f"expected one TorchRL snippet in README.md, found {len(blocks)}"
+    """The guide's Python block that wraps coverage_v0 in TorchRL (exactly one)."""
+    blocks = [b for b in re.findall(r"```python\n(.*?)```", GUIDE.read_text(), re.S) if "PettingZooWrapper" in b]
+    assert len(blocks) == 1, f"expected one TorchRL snippet in the guide, found {len(blocks)}"
     return blocks[0]
 
 
 def test_readme_snippet(capsys):
     ns: dict = {}
-    exec(compile(readme_snippet(), "README.md (TorchRL)", "exec"), ns)  # runs check_env_specs itself
+    exec(compile(readme_snippet(), "docs/guides/environments.md (TorchRL)", "exec"), ns)  # runs check_env_specs itself
     env, rollout = ns["env"], ns["rollout"]
     assert rollout.batch_size == torch.Size([10])
     obs = rollout["robot", "observation"]

@@ -41,7 +41,7 @@ def test_symmetry_suite_images_are_the_same_world():
     symmetries, robots on the world's edge included (``line`` spans x = 0 .. 1024): the decentralized
     CVT, a deterministic function of the state, moves every image's robots to the images of the
     layout's positions and leaves every image at the layout's cost. So a difference between images'
-    costs is the policy's, not the world's (README, Exploration from packed starts)."""
+    costs is the policy's, not the world's (docs/reports/2026-12-03-packed-starts.md)."""
     envs = {e.key: e for e in suite_envs("symmetry", 1)}
     for layout in ("line", "square"):
         images = [CoverageEnv(envs[f"{layout}_d4-{g}-000"].scenario()) for g in range(D4_SIZE)]

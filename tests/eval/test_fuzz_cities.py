@@ -1,5 +1,5 @@
 """Fuzz the city importer: any bytes or JSON in a .csv, .geojson or .json signals file give a city
-or a one-line InputError (madp's own error) naming the file — never another exception (issue 15; a
+or a one-line InputError (madp's own error) naming the file — never another exception (a
 ValueError of another kind would be a bug, printed with its traceback)."""
 
 from __future__ import annotations

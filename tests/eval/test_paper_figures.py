@@ -128,7 +128,7 @@ def test_the_uniform_plot_shades_the_95_percent_band_of_its_curves():
 
 
 def test_symmetry_check_against_pandas_and_in_the_report(tmp_path):
-    """The symmetry suite's check (issue 25): each image's mean against the layout's mean over its images,
+    """The symmetry suite's check: each image's mean against the layout's mean over its images,
     within the image's SE or not, counted per layout; in summary.json, summary.md and symmetry.png."""
     groups = {f"{lay}_d4-{g}": {"launch": lay} for lay in ("line", "square") for g in range(8)}
     curves, results = make_suite("symmetry", groups, controllers=("lpac", "madp"), n_envs=4, steps=3, seed=5)

@@ -1,4 +1,4 @@
-"""madp eval with MADP choosing among K samples per robot (--select, --candidates; issue 26): the
+"""madp eval with MADP choosing among K samples per robot (--select, --candidates): the
 setting travels into config.json, results.parquet, summary.json, summary.md and the recordings'
 metadata, is refused for a suite made with another, and batched rollouts match lone ones."""
 

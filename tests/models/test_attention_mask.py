@@ -1,7 +1,7 @@
 """The attention masks (``madp.models.attention_mask``): distance below r_c and the same communication
 component, checked against scipy; and their contract details: the default self loops of the
 communication graph, ``valid`` given as a 0/1 tensor of another dtype, and padding tokens that share a
-neighbourhood id (written against the mutants mutmut left alive in the module, issue 17; each such test
+neighbourhood id (written against the mutants mutmut left alive in the module; each such test
 names the mutants it kills). The distance rule itself (< r_c) is pinned here and in
 ``test_comm_radius.py``."""
 

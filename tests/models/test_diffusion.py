@@ -1,6 +1,6 @@
 """The DDPM schedule and its DDIM step (``madp.models.diffusion``): constants, the forward process,
 every DDIM step against oracles written here from the papers and against diffusers, and the edge
-cases the mutation campaign found unchecked (issue 17: ``predict_x0`` against ``add_noise``,
+cases the mutation campaign found unchecked (``predict_x0`` against ``add_noise``,
 ``clip_x0`` on both signs, the per-device cache, the noise source; each such test names the
 mutations it guards)."""
 
@@ -125,7 +125,7 @@ def test_sample_timesteps_range(sched, gen):
     assert k.min() >= 1 and k.max() <= 1000 and k.dtype == torch.long
 
 
-# --- Expectations built without the code under test (issue 17) ------------------------------------
+# --- Expectations built without the code under test --------------------------------------------
 
 def textbook_abar(k_max=1000, beta_start=1e-4, beta_end=0.02):
     """``abar[k]`` for k = 0..K from Ho et al. (2020) in numpy: linear betas, abar_0 = 1."""
@@ -210,7 +210,7 @@ def test_schedule_and_forward_process_match_diffusers(gen):
     assert torch.allclose(got, ref.add_noise(x0, noise, k - 1), rtol=1e-5, atol=1e-5)
 
 
-# --- Edge cases the mutation campaign found (issue 17) --------------------------------------------
+# --- Edge cases the mutation campaign found ----------------------------------------------------
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_predict_x0_inverts_add_noise(gen, dtype):

@@ -1,6 +1,6 @@
 """MADP (``madp.models.madp``): shapes, loss, equivariance and invariance, masks and padding,
 decentralized against centralized sampling, round trips; then its pieces against expectations
-computed without the code under test, and its wiring pinned (issue 17: the mutation campaign found
+computed without the code under test, and its wiring pinned (the mutation campaign found
 the sinusoidal embedding, the loss, the initialisation and the model's wiring — RoPE, time embedding,
 padding — unchecked; each such test names the mutants it guards).
 
@@ -278,7 +278,7 @@ def test_decentralized_equals_each_robot_running_the_model_on_its_own_neighbourh
     neighbourhood (mask recomputed among those robots, with the component term) and keeps its own
     action. Overlapping, unequal neighbourhoods, two swarms, padding. Fails if packed
     neighbourhoods see each other, if an ego reads another slot, or if noise is not shared; and
-    (issue 17) on full attention inside each neighbourhood: several neighbourhoods here hold two
+    on full attention inside each neighbourhood: several neighbourhoods here hold two
     robots more than r_c apart, which must not attend to each other."""
     b, n = 2, 10
     obs = random_obs(b, n, generator=gen)
@@ -319,7 +319,7 @@ def test_paper_preset_structure():
     assert (attn.n_heads, attn.head_dim) == (8, 32)
 
 
-# --- MADP's pieces against independent expectations (issue 17) ----------------------------------
+# --- MADP's pieces against independent expectations ------------------------------------------
 
 def grid_swarm(gen, b: int, n: int, hi: float, lo: float = 0.0):
     """``obs [b, n, 4, 32, 32]`` then positions ``[b, n, 2]`` on a 1/64 m grid in [lo, hi]² m, drawn

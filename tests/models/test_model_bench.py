@@ -24,7 +24,7 @@ def test_infer_report_neighbourhoods():
 
 @pytest.mark.slow
 def test_dedupe_makes_a_fully_connected_swarm_several_times_cheaper():
-    """README "Fast sampling": with everyone in range all 32 neighbourhoods are the same robots, so
+    """docs/reports/2026-12-01-sampler-steps.md: with everyone in range all 32 neighbourhoods are the same robots, so
     dedupe computes one instead of 32 (measured ~6x faster on 1 thread). Timing: slow marker."""
     kw = dict(num_steps=10, num_robots=32, repeats=5, warmup=1, layout="square", sampler="ddim", threads=1)
     fast = bench_infer("cpu", "decentralized", dedupe=True, **kw)

@@ -8,7 +8,8 @@ import torch
 from safetensors import safe_open
 
 from madp.models import MADP, madp_config
-from madp.policies.parts import INDEX_SUFFIX, MAX_PART_BYTES, main, write_fp16
+from madp.policies.fp16 import main
+from madp.policies.parts import INDEX_SUFFIX, MAX_PART_BYTES, write_fp16
 from madp.training.checkpoint import load_policy, save_policy
 from tests.test_reliability_errors import assert_one_line, cli
 

@@ -1,4 +1,4 @@
-"""Choosing among MADP's samples (issue 26, madp/policies/select.py).
+"""Choosing among MADP's samples (madp/policies/select.py).
 
 The contracts: the oracle keeps the joint sample of lowest true J after the step; the local rules
 (``cell``, ``mppi``) see only a robot's own map and its neighbours within r_c; ``mppi`` spans the
@@ -327,7 +327,7 @@ def test_choosing_on_the_cell_cost_or_the_medoid_keeps_the_policy_equivariant(mo
 
 
 def test_explore_is_equivariant_but_where_its_prior_reads_a_block_boundary(model, monkeypatch):
-    """Stated tolerance (README, Choosing among MADP's samples): explore's prior reads the explored
+    """Stated tolerance (docs/concepts/sampling.md): explore's prior reads the explored
     map at one cell per window block, which a reflection can move across an explored block's
     boundary when the robot's cell is not a multiple of 4 m; at most 2 % of the robots' choices
     differ from their image's here (measured: 8 of 1008)."""

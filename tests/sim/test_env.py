@@ -4,8 +4,8 @@ refuses bad actions with one-line messages, computes in float64 whatever the act
 warns, leaves robots whose speed is at most 1e-10 in place, keeps positions in (0, W) without snapping
 ones near the border, counts its steps, and builds observations of any ``obs_size``.
 
-The contract tests are written against the mutants mutmut left alive in ``madp/sim/env.py`` (issue 17
-and the campaign on the numba simulator, 2026-12-02); each names the mutants it kills. The oracle of
+The contract tests are written against the mutants mutmut left alive in ``madp/sim/env.py``
+(and in the campaign on the numba simulator, 2026-12-02); each names the mutants it kills. The oracle of
 the library's oscillation check is ``CoverageSystem::CheckOscillation``, transcribed below."""
 
 from __future__ import annotations

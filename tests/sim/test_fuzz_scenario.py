@@ -1,5 +1,5 @@
 """Fuzz the scenario loader: any JSON (or bytes) in a scenario file gives a Scenario or a one-line
-ScenarioError — never another exception (issue 15)."""
+ScenarioError — never another exception."""
 
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ degenerate ones: robots sharing a point, cells without importance, robots at the
 fewer than four robots or all collinear (no Delaunay triangulation), sensor squares as wide as the
 world.
 
-Tolerances (docs/sim-speed.md): the Voronoi sums (masses, centroids, costs, J, both controllers'
+Tolerances (docs/reports/2026-12-02-sim-speed.md): the Voronoi sums (masses, centroids, costs, J, both controllers'
 goals) and the block prefix sums are bit-identical, since the kernels do numpy's float operations
 in numpy's order; the resize differs from the dense products by float32 summation order only.
 """

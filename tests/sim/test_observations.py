@@ -2,7 +2,7 @@
 float32 throughout, and the neighbour-map pixel rule at its edges (float32 rounding, the border
 pixels).
 
-Written against the mutants mutmut left alive in ``madp/sim/observations.py`` (issue 17); each test
+Written against the mutants mutmut left alive in ``madp/sim/observations.py``; each test
 names the mutants it kills. ``tests/sim/test_geometry.py`` already checks the default resize against
 torch and the boundary map's closed form at the default sizes. The tests from
 ``test_resize_windows_reads_every_row_of_a_tall_map`` on are from the campaign on the numba simulator

@@ -1,4 +1,4 @@
-"""``madp.sim.rollout``: what ``madp rollout`` runs (issue 17: mutmut found no test of the rollout record
+"""``madp.sim.rollout``: what ``madp rollout`` runs (mutmut found no test of the rollout record
 or ``Rollout.to_json`` in the unit suites)."""
 
 from __future__ import annotations

@@ -3,7 +3,7 @@ write, the exact one-line errors of ``load``, ``from_dict`` and ``check_coverabl
 as they are, so the whole message is pinned), the world's closed bounds for robots, the memory refusal,
 the optional fields kept, and the features' limits (σ and peak > 0, the mass 2πσ²·peak finite).
 
-Written against the mutants mutmut left alive in ``madp/sim/scenario.py`` (issue 17); each test names
+Written against the mutants mutmut left alive in ``madp/sim/scenario.py``; each test names
 the mutants it kills (``from_dict`` mutants are written ``from_dict_N``). Tiny worlds (256 m) keep
 every test cheap."""
 

@@ -1,4 +1,4 @@
-"""LPAC-K3's graph layers stay alive under the default recipe (issue 12); apart from test_training.py so
+"""LPAC-K3's graph layers stay alive under the default recipe; apart from test_training.py so
 that pytest-xdist (--dist loadfile) can run these two longest trainings beside the rest."""
 
 import json

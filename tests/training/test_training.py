@@ -86,7 +86,7 @@ def losses(run: Path):
 @pytest.mark.parametrize("model,workers", [("madp", 0), ("lpac", 0), ("madp", 2)])
 def test_exact_resume(dataset, tmp_path, model, workers):
     """Stopped after 5 steps and resumed, a run logs the same losses, learning rates and weights as
-    an uninterrupted one. With 2 loader workers (issue 17) each worker's stream position must be
+    an uninterrupted one. With 2 loader workers each worker's stream position must be
     restored too: fails if a resumed worker restarts its shards or skips another worker's."""
     kw = dict(data=str(dataset), epochs=2, batch_size=8, num_workers=workers, log_every=1, val_samples=16,
               checkpoint_every=3, seed=7, warmup_steps=2)  # cpu preset: cosine schedule
