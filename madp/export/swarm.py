@@ -27,10 +27,7 @@ from madp.robot import RobotRuntime
 
 from .onnx import export_policy
 
-__all__ = ["OnnxMADPPolicy", "exported", "RUNTIMES"]
-
-#: ``madp eval --runtime``: the PyTorch policy, or the exported files through the robot runtime.
-RUNTIMES = ("torch", "onnx")
+__all__ = ["OnnxMADPPolicy", "exported"]
 
 _exports: dict[tuple, Path] = {}
 
@@ -59,6 +56,7 @@ class OnnxMADPPolicy:
             raise SettingError("candidates", f"expected >= 1, got {self.sampling.candidates}")
         self.runtime = RobotRuntime(exported(policy, self.sampling))
         self.candidates = self.sampling.candidates
+        self.sent: list = []
         self.reset(seed)
 
     def reset(self, seed: int) -> None:
@@ -75,6 +73,7 @@ class OnnxMADPPolicy:
         if views is not None and rt.rule == "explore":
             views = explore_prior(env, views)
         sent = [rt.message(i, env.steps, obs[i], pos[i], pos[nbr[i]], seed) for i in range(env.num_robots)]
+        self.sent = sent  # what the robots broadcast (recordings)
         actions, cands = [], []
         for i in range(env.num_robots):
             row = None if views is None else replace(views, **{k: getattr(views, k)[i:i + 1] for k in
