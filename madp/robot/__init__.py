@@ -5,6 +5,7 @@ rules' numba kernels). Importing this package never imports torch (tests/robot c
 - :mod:`.runtime`: :class:`RobotRuntime`, observation, position and inbox -> action and message;
 - :mod:`.inbox`: which received messages a robot uses, and the counts of those it drops;
 - :mod:`.frame`: the d4 frame of one robot (the evaluation default);
+- :mod:`.choice`: a robot's choice among its K samples (the local cell cost, MPPI's weights, the medoid);
 - :mod:`.ros2`: the ROS 2 side: message definitions and rosbag2 (MCAP) recordings of rollouts.
 """
 

@@ -14,7 +14,7 @@ computes it for every robot at once):
    the senders within r_c, ascending by id) and the denoiser graph S times (DPM-Solver++(2M), the
    constants of ``runtime.json``) on K noise draws as one batch; it keeps its own token's K actions,
    moves them back to the world's axes, clips them to u_max and keeps one by the selection rule
-   (:mod:`madp.policies.select`, numpy and numba).
+   (:mod:`madp.policies.select`'s rules, computed by :mod:`madp.robot.choice`: numpy and numba).
 
 Noise: candidate k of robot j starts from ``noise(ids)[k, j]``; a robot must know its neighbours' noise
 (so every robot of a neighbourhood sees the same swarm sample), and by default derives it from the
@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 
 from madp.errors import InputError
-from madp.policies.select import LocalViews, local_cell_costs, medoid_index, mppi_weights
+from .choice import LocalViews, local_cell_costs, medoid_index, mppi_weights
 from madp.sim.network import Message
 from madp.sim.params import SimParams
 
