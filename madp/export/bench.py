@@ -30,7 +30,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
 
     from madp.models.bench import _threads
     from madp.policies import MADPPolicy, SamplingSettings, load, noise_generator, shipped_checkpoint
-    from madp.policies.select import explore_prior, local_views
+    from madp.robot.choice import explore_prior, local_views
     from madp.robot import RobotRuntime
     from madp.sim import CoverageEnv, Scenario, SimParams
 

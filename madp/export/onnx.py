@@ -82,10 +82,11 @@ def _example(model, tokens: int = 3, batch: int = 2) -> dict[str, Tensor]:
 
 
 def graph_modules(model) -> dict[str, tuple[nn.Module, tuple[str, ...], tuple[str, ...]]]:
-    """The three networks of one robot's step: ``{role: (module, input names, output names)}``."""
-    return {"perception": (_Perception(model), ("observation",), ("z",)),
-            "encoder": (_Encoder(model), ("tokens", "positions_m", "mask"), ("memory",)),
-            "denoiser": (_Denoiser(model), ("noisy_actions", "step", "memory", "positions_m", "mask"), ("eps",))}
+    """The three networks of one robot's step: ``{role: (module, input names, output names)}``, in eval
+    mode (the exporter puts a module back in the mode it found it in, children included)."""
+    return {"perception": (_Perception(model).eval(), ("observation",), ("z",)),
+            "encoder": (_Encoder(model).eval(), ("tokens", "positions_m", "mask"), ("memory",)),
+            "denoiser": (_Denoiser(model).eval(), ("noisy_actions", "step", "memory", "positions_m", "mask"), ("eps",))}
 
 
 def _axes(name: str) -> dict[int, str]:

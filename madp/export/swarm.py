@@ -22,7 +22,7 @@ import torch
 from madp.data_schema.manifest import sha256_file
 from madp.errors import SettingError
 from madp.policies.madp import SamplingSettings, noise_generator
-from madp.policies.select import explore_prior, local_views
+from madp.robot.choice import explore_prior, local_views
 from madp.robot import RobotRuntime
 
 from .onnx import export_policy

@@ -1,20 +1,27 @@
-"""What one robot computes to choose among its K samples (:mod:`madp.policies.select` has the rules and
-the views of a whole swarm): its :class:`LocalViews` row, the local cell cost of each candidate
-(:func:`local_cell_costs`), MPPI's weights and the medoid. numpy and numba only (no torch): the robot
+"""What one robot computes to choose among its K samples (:mod:`madp.policies.select` has the rules):
+what it knows (:func:`local_views`, with the ``explore`` prior :func:`explore_prior`; computed for
+every robot of an environment at once, row i from robot i's own map and neighbours alone), the local
+cell cost of each candidate (:func:`local_cell_costs`), MPPI's weights and the medoid. numpy and numba only (no torch): the robot
 runtime (:mod:`madp.robot.runtime`) and MADP's PyTorch policy run the same code.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
 from madp.sim.env import move
 from madp.sim.params import SimParams
+from madp.sim.robot_maps import EXPLORED_BLOCK_M
 
-__all__ = ["GRID_M", "MPPI_TEMPERATURE", "LocalViews", "local_cell_costs", "mppi_weights", "medoid_index"]
+if TYPE_CHECKING:
+    from madp.sim.env import CoverageEnv
+
+__all__ = ["GRID_M", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views", "medoid_index",
+           "mppi_weights"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
@@ -39,6 +46,64 @@ class LocalViews:
     origin_m: np.ndarray
     neighbours_m: np.ndarray
     valid: np.ndarray
+
+
+def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
+    """Every robot's :class:`LocalViews` row: its own map (``env.maps``, what it sensed) in its
+    256 m window (zero outside the world), its position, and its neighbours (``env.neighbours()``).
+    ``true_map``: the world map in the same window instead (``oracle_cell``: not what a robot knows)."""
+    s = env.params.local_map_size
+    g = s // GRID_M
+    cells = env.cells()
+    starts = cells - s // 2 + env.maps.pad  # each window's lower corner in the padded maps
+    maps = env.maps.world_padded[None] if true_map else env.maps.maps_padded  # the world's, or each robot's own
+    weights = _block_sums(maps, not true_map, starts, g, GRID_M)
+    nbr = env.neighbours()
+    m = max(int(nbr.sum(1).max()), 1)
+    order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
+    valid = np.take_along_axis(nbr, order, 1)
+    return LocalViews(env.start_m, env.offset_m, weights, (cells - s // 2).astype(np.float64),
+                      env.positions_m[order], valid)
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_sums(maps, own, starts, g, b):  # pragma: no cover (compiled)
+    """[R, g, g] float64: the b × b block sums of robot r's window of ``maps[r if own else 0]``
+    from padded corner ``starts[r]``; each block summed over its rows, then its columns (numpy's
+    ``reshape(...).sum(2).sum(3)`` order: the same bits)."""
+    out = np.zeros((len(starts), g, g))
+    for r in range(len(starts)):
+        m = maps[r if own else 0]
+        x0, y0 = starts[r, 0], starts[r, 1]
+        for a in range(g):
+            for c in range(g):
+                total = 0.0
+                for j in range(b):
+                    col = 0.0
+                    for i in range(b):
+                        col += m[x0 + a * b + i, y0 + c * b + j]
+                    total += col
+                out[r, a, c] = total
+    return out
+
+
+def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
+    """``views`` with each robot's unexplored blocks of its window (inside the world) given the mean
+    mass of its explored ones (1 when those hold none): the weights ``explore`` uses. Reads the
+    robot's own explored map, sampled at each window block's centre."""
+    g = views.weights.shape[1]
+    pad, w = env.maps.pad, env.params.world_size
+    centre = views.origin_m.astype(np.int64)[:, :, None] + pad + GRID_M * np.arange(g) + GRID_M // 2  # [N, 2, G], padded
+    idx = centre // EXPLORED_BLOCK_M
+    n = np.arange(len(centre))[:, None, None]
+    explored = env.maps.explored[n, idx[:, 0, :, None], idx[:, 1, None, :]]  # [N, G, G]
+    inside = ((centre >= pad) & (centre < pad + w))
+    inside = inside[:, 0, :, None] & inside[:, 1, None, :]
+    seen = explored & inside
+    mass = np.where(seen, views.weights, 0.0).sum((1, 2)) / np.maximum(seen.sum((1, 2)), 1)
+    mass = np.where(mass > 0, mass, 1.0)
+    prior = np.where(inside & ~explored, mass[:, None, None], 0.0)
+    return replace(views, weights=views.weights + prior)
 
 
 @numba.njit(cache=True, nogil=True)
