@@ -17,7 +17,7 @@ import torch
 from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 from madp.models.symmetry import inverse_actions, transform_state
-from madp.robot.frame import frame_element  # noqa: F401 (torch-free: the robot runtime computes it too)
+from madp.robot.frame import frame_element  # torch-free: the robot runtime computes it too
 
 from .select import DEFAULT_SELECT, check_selection, default_candidates, select_actions
 from .swarm import clip_speed, swarm_tensors
