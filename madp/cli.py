@@ -47,6 +47,8 @@ def rollout(
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
     network: Optional[str] = typer.Option(None, help="A network between the robots: a group of the faults suite (ideal, loss_30, delay_1s, fail_25, noise_5m, ...) or NAME=VALUE items, e.g. loss=0.3,delay_steps=5,max_age_steps=10,missing=keep,fail_fraction=0.25,fail_step=200,position_noise_m=5,seed=0 (default: none, every robot reads the true state)."),
+    record: Optional[Path] = typer.Option(None, help="Also record the rollout here (see --record-format)."),
+    record_format: str = typer.Option("foxglove", help="--record's format: foxglove (MCAP with Foxglove schemas) | ros2 (a rosbag2 MCAP file: geometry_msgs/Twist on /robot_I/cmd_vel, poses, MADP's tokens; docs/guides/export.md)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.controllers import controller_info, make_controller
@@ -61,12 +63,20 @@ def rollout(
     device = resolve_device(device)  # checked, like the video path, before anything is read or run
     sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
     frames = [Frames(check_video_path(video), steps)] if video is not None else []
+    from madp.eval.recorders import RECORD_FORMATS, recorder  # the format is checked before anything runs
+
+    if record_format not in RECORD_FORMATS:
+        raise SettingError("record-format", f"expected one of {', '.join(RECORD_FORMATS)}, got {record_format!r}")
     net = network_settings(network) if network is not None else None
     sc = Scenario.load(scenario)
     ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0,
                            sampling=sampling, device=device)
-    result = run(CoverageEnv(sc, network=net), ctrl, steps, frames)
+    env = CoverageEnv(sc, network=net)
+    rec = recorder(record_format, env, ctrl, controller, steps) if record is not None else None
+    result = run(env, ctrl, steps, frames + ([rec] if rec else []))
     write_json_atomic(out, result.to_json(controller))
+    if rec is not None:
+        typer.echo(f"{record_format} recording: {rec.write(record)}")
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
                f" (converged at {result.converged_at}) -> {out}")
     for f in frames:
@@ -234,6 +244,7 @@ def eval_cmd(
     overwrite: bool = typer.Option(False, help="Replace results made with other settings: removes only the files madp wrote in OUT/<suite>/ (config, job files, recordings, tables and the report's files); any other file makes it refuse, naming the file."),
     ray: Optional[str] = ray_option(),
     device: str = typer.Option("cpu", help="Where the learned controllers' models run: cpu | cuda | cuda:I | auto (cuda when there is one). Each worker holds its own copy."),
+    runtime: str = typer.Option("torch", help="How MADP (decentralized) runs: torch (the PyTorch policy) | onnx (every robot through the files of madp export and the torch-free robot runtime, with the same noise; docs/guides/export.md)."),
 ) -> None:
     """Evaluate controllers across a scenario suite: tables, plots, MCAP rollouts and MP4 videos.
     `madp eval compare RUN_A RUN_B …` compares finished evaluations."""
@@ -252,7 +263,8 @@ def eval_cmd(
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
-                     named=tuple(named.items()), groups=tuple(g.strip() for g in groups.split(",")) if groups else ())
+                     named=tuple(named.items()), groups=tuple(g.strip() for g in groups.split(",")) if groups else (),
+                     runtime=runtime)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)
@@ -275,6 +287,25 @@ def eval_compare_cmd(
     files = write_compare(cmp, out or Path("runs/compare") / cmp["suite"])
     typer.echo(markdown(cmp))
     typer.echo(f"-> {', '.join(str(p) for p in files.values())}")
+
+
+@app.command("export")
+def export_cmd(
+    policy: Path = typer.Argument(..., help="MADP policy.safetensors (e.g. madp/checkpoints/madp-cpu.safetensors)."),
+    out: Path = typer.Option(..., help="Directory for the graphs and runtime.json (created)."),
+    sampling_steps: Optional[int] = typer.Option(None, min=1, help="DPM-Solver++(2M) steps S in runtime.json (default: the evaluation default, 3)."),
+    frame: str = typer.Option("d4", help="d4 | world (as madp eval --frame)."),
+    select: Optional[str] = SELECT,
+    candidates: Optional[int] = CANDIDATES,
+) -> None:
+    """Write MADP's networks of one robot's step as ONNX graphs (perception, encoder, denoiser) and runtime.json, for the torch-free robot runtime (docs/guides/export.md)."""
+    from madp.export.onnx import export_policy
+    from madp.policies import SamplingSettings
+
+    spec = export_policy(policy, out, SamplingSettings.of("dpm++", sampling_steps, 0.0, False, frame, select, candidates))
+    typer.echo(f"{policy} -> {out}: {', '.join(spec['graphs'].values())}, runtime.json ({spec['sampler']['name']} "
+               f"S = {spec['sampler']['steps']}, {spec['selection']['rule']} among K = {spec['selection']['candidates']}, "
+               f"frame {spec['selection']['frame']}; sha256 {spec['source']['sha256'][:12]})")
 
 
 @scenario_app.command("import")

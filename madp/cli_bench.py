@@ -86,6 +86,12 @@ def bench_train_cmd(
     _show(format_train_bench(rows), rows, out)
 
 
+def _onnxruntime() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("onnxruntime") is not None
+
+
 @bench_app.command("infer")
 def bench_infer_cmd(
     madp: Optional[Path] = typer.Option(None, help="Trained MADP checkpoint for the closed-loop sweep (default: shipped)."),
@@ -99,6 +105,7 @@ def bench_infer_cmd(
     presets: str = typer.Option("cpu,paper", help="Comma-separated presets whose latency is measured."),
     sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="--no-sweep: no closed-loop sweep; the latency of every --grid setting instead."),
     candidates: Optional[str] = typer.Option(None, help="Also the latency of a whole decentralized control step with K samples per robot and each --select rule of madp eval, for these K (e.g. 1,4,16)."),
+    robot: Optional[bool] = typer.Option(None, "--robot/--no-robot", help="Also one robot's control step through madp export's files (onnxruntime, 1 thread, K = 4) beside PyTorch's per robot; default: when onnxruntime imports (madp[onnx])."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
@@ -107,5 +114,6 @@ def bench_infer_cmd(
 
     r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
                         repeats=repeats, workers=workers, presets=parse_presets(presets), device=resolve_device(device),
-                        sweep=sweep, candidates=parse_candidates(candidates) if candidates else ())
+                        sweep=sweep, candidates=parse_candidates(candidates) if candidates else (),
+                        robot=_onnxruntime() if robot is None else robot)
     _show(format_table(r), r, out)

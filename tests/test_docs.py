@@ -119,7 +119,7 @@ def test_the_command_line_check_finds_what_does_not_exist():
     found = [madp_invocation(w) for w in shell_commands(text)]
     assert [check_command_line(a) for a in found] == [
         ["madp eval: no option --no-such-option"],
-        ["madp: expected one of ['bench', 'datagen', 'dataset', 'eval', 'rollout', 'scenario', 'train'], got ['evaluate']"],
+        ["madp: expected one of ['bench', 'datagen', 'dataset', 'eval', 'export', 'rollout', 'scenario', 'train'], got ['evaluate']"],
         [],
         ["madp dataset: expected one of ['convert', 'info', 'merge', 'verify'], got []"],
     ]

@@ -17,6 +17,9 @@
 6. With ``candidates`` (``--candidates 1,4,16``): the latency of one whole decentralized MADP control
    step (cpu preset, the default sampler) with K samples per robot and each rule that chooses among
    them (:mod:`madp.policies.select`): :func:`bench_select`.
+7. With ``robot`` (``--robot``, the default where onnxruntime imports): one robot's control step through
+   the files of ``madp export`` on one thread, K = 4, beside PyTorch's per robot
+   (:mod:`madp.export.bench`).
 
 The paper reports 0.36 s per control step (N = 32) on an RTX 3090.
 """
@@ -203,11 +206,13 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
                     grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
                     repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
                     progress: bool = True, device: str = "cpu", sweep: bool = True,
-                    candidates: tuple[int, ...] = ()) -> dict:
+                    candidates: tuple[int, ...] = (), robot: bool = False) -> dict:
     """The whole ``madp bench infer`` (module docstring) on ``device`` (the sweep's rollouts and the
     latency). Without a checkpoint (none given and none shipped) the sweep is skipped and latency is
     reported for DDIM-50 only; with ``sweep=False`` the sweep is skipped and latency is reported for
-    every setting of ``grid`` (DDIM-50 included). ``candidates``: also :func:`bench_select` at those K."""
+    every setting of ``grid`` (DDIM-50 included). ``candidates``: also :func:`bench_select` at those K;
+    ``robot``: also one robot's control step through ``madp export``'s files
+    (:func:`madp.export.bench.bench_robot_runtime`)."""
     grid = grid or dict(DEFAULT_GRID)
     out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None, "device": device, "swept": sweep}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
@@ -232,6 +237,10 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
     out["latency"] = lat
     if candidates:
         out["selection"] = bench_select(candidates, checkpoint, repeats, threads, device)
+    if robot:
+        from madp.export.bench import bench_robot_runtime
+
+        out["robot_runtime"] = bench_robot_runtime(checkpoint, repeats=repeats)
     if out["sweep"] and any(x["preset"] == "cpu" and x["mode"] == "decentralized" for x in lat):
         cands = [x for x in lat if x["preset"] == "cpu" and x["mode"] == "decentralized"]
         best = min(cands, key=lambda x: x["latency_s"])
@@ -276,4 +285,8 @@ def format_table(r: dict) -> list[str]:
                          f"and choice included: {x['sampler']} S = {x['num_steps']}, N = {x['num_robots']}, "
                          f"{x['threads']} threads, {model})")
         lines.append(f"{x['candidates']:>4}  {x['select']:<8}{1e3 * x['latency_s']:>12.1f}")
+    if r.get("robot_runtime"):
+        from madp.export.bench import format_robot_runtime
+
+        lines += format_robot_runtime(r["robot_runtime"])
     return lines

@@ -46,7 +46,9 @@ from .suites import EnvSpec, only_groups, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
-                    "device": "cpu"}
+                    "device": "cpu", "runtime": "torch"}
+#: ``--runtime``: MADP (decentralized) as the PyTorch policy, or robot by robot through ``madp export``'s files.
+RUNTIMES = ("torch", "onnx")
 
 
 @dataclass(frozen=True)
@@ -69,8 +71,11 @@ class EvalConfig:
     record_samples: int = 4
     device: str = "cpu"  # where the learned controllers' models run ("cpu", "cuda", "cuda:I")
     groups: tuple[str, ...] = ()  # run only these groups of the suite (empty: all)
+    runtime: str = "torch"  # RUNTIMES: "onnx" runs decentralized MADP through madp.robot (madp.export.swarm)
 
     def __post_init__(self) -> None:
+        if self.runtime not in RUNTIMES:
+            raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {self.runtime!r}")
         if self.ray is not None:
             import_ray()  # a one-line error now when Ray is not installed
 
@@ -87,7 +92,16 @@ class EvalConfig:
 
     def controller(self, name: str, spec: EnvSpec):
         """Controller ``name`` as this suite runs it (:func:`madp.controllers.make_controller`), MADP's
-        noise seeded by the environment's seed."""
+        noise seeded by the environment's seed; with ``runtime="onnx"`` decentralized MADP runs robot by robot
+        through the export of its checkpoint (:class:`madp.export.swarm.OnnxMADPPolicy`, the same noise)."""
+        info = controller_info(name)
+        if self.runtime == "onnx" and info.samples:
+            if info.mode != "decentralized":
+                raise SettingError("runtime", f"onnx runs MADP robot by robot (decentralized), not {name}")
+            from madp.controllers import resolve_checkpoint
+            from madp.export.swarm import OnnxMADPPolicy
+
+            return OnnxMADPPolicy(resolve_checkpoint(name, self.checkpoint(name)), self.sampling, seed=spec.seed)
         return make_controller(name, self.checkpoint(name), seed=spec.seed, sampling=self.sampling, device=self.device)
 
 
@@ -322,7 +336,8 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     # MADP's sampling as flat keys (sampler, sampling_steps, eta, …), as earlier suites wrote them.
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, **cfg.sampling.as_dict(),
                 "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
-                "env_seeds": [e.seed for e in envs], "device": cfg.device}
+                "env_seeds": [e.seed for e in envs], "device": cfg.device,
+                "runtime": cfg.runtime}
     # The checkpoints this run uses: per kind (the plain controllers') and per named controller.
     plain_kinds = {controller_info(c).kind for c in cfg.controllers if not is_named(c)}
     used = [(k, getattr(cfg, k)) for k in CHECKPOINT_KINDS if getattr(cfg, k) and k in plain_kinds]

@@ -22,7 +22,8 @@ import torch
 
 from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
-from madp.models.symmetry import D4_SIZE, inverse_actions, transform_points, transform_state
+from madp.models.symmetry import inverse_actions, transform_points, transform_state
+from madp.robot.frame import frame_element  # torch-free: the robot runtime computes it too
 
 from .select import DEFAULT_SELECT, check_selection, default_candidates, select_actions
 from .swarm import clip_speed, swarm_tensors
@@ -42,12 +43,6 @@ def noise_generator(seed: int) -> torch.Generator:
 
 #: The frames MADP's model may see the world in (:class:`SamplingSettings`).
 FRAMES = ("world", "d4")
-
-
-def frame_element(seed: int, step: int) -> int:
-    """The element of D4 (0..7) an episode of seed ``seed`` acts in at control step ``step``
-    (``frame="d4"``): a hash of both, independent of the sampling noise."""
-    return int(np.random.SeedSequence([int(seed) & ((1 << 63) - 1), int(step), 0xD4]).generate_state(1)[0] % D4_SIZE)
 
 
 @dataclass(frozen=True)

@@ -31,31 +31,31 @@ The local rules read only what a robot knows: :func:`local_views` collects, per 
 window, its own position and its neighbours' positions; :func:`local_cell_costs` and
 :func:`mppi_weights` take nothing else, and row i of their result depends on row i of their inputs
 alone. Only :func:`oracle_costs` and ``oracle_cell``'s true-map views read the world map.
+
+What a robot computes for itself (:func:`local_views`, :func:`explore_prior`, :func:`local_cell_costs`,
+:func:`mppi_weights`, :func:`medoid_index`) lives in :mod:`madp.robot.choice` (no torch, so the robot runtime uses it too) and
+is re-exported here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numba
 import numpy as np
 
 from madp.errors import SettingError
+from madp.robot.choice import (GRID_M, MPPI_TEMPERATURE, LocalViews, explore_prior, local_cell_costs, local_views,
+                               medoid_index, mppi_weights)
 from madp.sim.env import CoverageEnv, move
-from madp.sim.params import SimParams
-from madp.sim.robot_maps import EXPLORED_BLOCK_M, robot_cells
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
-#: The rule MADP uses unless told otherwise (docs/concepts/sampling.md).
+#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
 DEFAULT_CANDIDATES = 4
-#: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
-GRID_M = 4
-#: MPPI's λ in units of the standard deviation of a robot's K local costs.
-MPPI_TEMPERATURE = 1.0
 
 
 def default_candidates(select: str) -> int:
@@ -84,146 +84,6 @@ def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
     left as it is. Reads the whole world map: an oracle, not something robots could compute."""
     pos, _ = move(env.start_m, env.offset_m, actions_mps, env.params)
     return np.array([coverage_cost(env.prefix, p) for p in pos])
-
-
-@dataclass(frozen=True)
-class LocalViews:
-    """What each robot knows, one row per robot (R rows):
-
-    ``start_m``, ``offset_m`` [R, 2]: its own position, as the motion rule integrates it;
-    ``weights`` [R, G, G]: its own sensed map inside its local window, summed over blocks of
-    GRID_M × GRID_M cells (float64); ``origin_m`` [R, 2]: the window's lower corner, so block (a, b)
-    has its centre at ``origin_m + GRID_M * (a, b) + GRID_M / 2``;
-    ``neighbours_m`` [R, M, 2]: the latest positions of its neighbours within r_c, padded;
-    ``valid`` [R, M]: which of them are real."""
-
-    start_m: np.ndarray
-    offset_m: np.ndarray
-    weights: np.ndarray
-    origin_m: np.ndarray
-    neighbours_m: np.ndarray
-    valid: np.ndarray
-
-
-def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
-    """Every robot's :class:`LocalViews` row: its own map (``env.maps``, what it sensed) in its
-    256 m window around its own position estimate (zero outside the world), that position, and the
-    neighbours it knows of (:meth:`CoverageEnv.neighbour_view`: its inbox when the environment has a
-    network). ``true_map``: the world map in the same window instead (``oracle_cell``: not what a robot knows)."""
-    s = env.params.local_map_size
-    g = s // GRID_M
-    own = env.estimates_m()
-    exact = own is env.positions_m  # no position noise: the motion rule's own start and offset
-    start_m, offset_m = (env.start_m, env.offset_m) if exact else (own, np.zeros_like(own))
-    cells = robot_cells(own)
-    starts = cells - s // 2 + env.maps.pad  # each window's lower corner in the padded maps
-    maps = env.maps.world_padded[None] if true_map else env.maps.maps_padded  # the world's, or each robot's own
-    weights = _block_sums(maps, not true_map, starts, g, GRID_M)
-    nbr, held_m = env.neighbour_view()
-    m = max(int(nbr.sum(1).max()), 1)
-    order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
-    valid = np.take_along_axis(nbr, order, 1)
-    neighbours_m = np.take_along_axis(held_m, order[:, :, None], 1)
-    return LocalViews(start_m, offset_m, weights, (cells - s // 2).astype(np.float64), neighbours_m, valid)
-
-
-@numba.njit(cache=True, nogil=True)
-def _block_sums(maps, own, starts, g, b):  # pragma: no cover (compiled)
-    """[R, g, g] float64: the b × b block sums of robot r's window of ``maps[r if own else 0]``
-    from padded corner ``starts[r]``; each block summed over its rows, then its columns (numpy's
-    ``reshape(...).sum(2).sum(3)`` order: the same bits)."""
-    out = np.zeros((len(starts), g, g))
-    for r in range(len(starts)):
-        m = maps[r if own else 0]
-        x0, y0 = starts[r, 0], starts[r, 1]
-        for a in range(g):
-            for c in range(g):
-                total = 0.0
-                for j in range(b):
-                    col = 0.0
-                    for i in range(b):
-                        col += m[x0 + a * b + i, y0 + c * b + j]
-                    total += col
-                out[r, a, c] = total
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _cell_costs(y, weights, origin, nbr, valid, b):  # pragma: no cover (compiled)
-    """[R, K]: Σ over the blocks of robot r's window closer to y[r, k] than to every valid neighbour
-    (ties: its own) of weight · distance² to the block's centre (:func:`local_cell_costs`)."""
-    r_n, k_n, g = y.shape[0], y.shape[1], weights.shape[1]
-    out = np.zeros((r_n, k_n))
-    for r in range(r_n):
-        for a in range(g):
-            qx = origin[r, 0] + b * a + b / 2
-            for c in range(g):
-                w = weights[r, a, c]
-                if w == 0.0:
-                    continue
-                qy = origin[r, 1] + b * c + b / 2
-                nearest = np.inf
-                for m in range(nbr.shape[1]):
-                    if valid[r, m]:
-                        d = (qx - nbr[r, m, 0]) ** 2 + (qy - nbr[r, m, 1]) ** 2
-                        nearest = min(nearest, d)
-                for k in range(k_n):
-                    d = (qx - y[r, k, 0]) ** 2 + (qy - y[r, k, 1]) ** 2
-                    if d <= nearest:
-                        out[r, k] += w * d
-    return out
-
-
-def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
-    """``views`` with each robot's unexplored blocks of its window (inside the world) given the mean
-    mass of its explored ones (1 when those hold none): the weights ``explore`` uses. Reads the
-    robot's own explored map, sampled at each window block's centre."""
-    g = views.weights.shape[1]
-    pad, w = env.maps.pad, env.params.world_size
-    centre = views.origin_m.astype(np.int64)[:, :, None] + pad + GRID_M * np.arange(g) + GRID_M // 2  # [N, 2, G], padded
-    idx = centre // EXPLORED_BLOCK_M
-    n = np.arange(len(centre))[:, None, None]
-    explored = env.maps.explored[n, idx[:, 0, :, None], idx[:, 1, None, :]]  # [N, G, G]
-    inside = ((centre >= pad) & (centre < pad + w))
-    inside = inside[:, 0, :, None] & inside[:, 1, None, :]
-    seen = explored & inside
-    mass = np.where(seen, views.weights, 0.0).sum((1, 2)) / np.maximum(seen.sum((1, 2)), 1)
-    mass = np.where(mass > 0, mass, 1.0)
-    prior = np.where(inside & ~explored, mass[:, None, None], 0.0)
-    return replace(views, weights=views.weights + prior)
-
-
-def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimParams) -> np.ndarray:
-    """Each robot's local cell cost of each of its candidates ``actions_mps [R, K, 2]`` (m/s): ``[R, K]``.
-
-    Robot r moves to y = :func:`madp.sim.env.move` of its own position; its cell is the set of
-    grid points of its window closer to y than to every valid neighbour (ties: its own); the cost is
-    ``sum over the cell of weight · |q − y|²`` (SPEC's J restricted to its own cell, on its own map,
-    on a grid of GRID_M m: each block's mass at the block's centre). Uses ``views`` and the motion
-    constants of ``params`` only."""
-    y, _ = move(views.start_m[:, None], views.offset_m[:, None], actions_mps, params)  # [R, K, 2]
-    return _cell_costs(np.ascontiguousarray(y, dtype=np.float64), views.weights, views.origin_m,
-                       np.ascontiguousarray(views.neighbours_m, dtype=np.float64), views.valid, GRID_M)
-
-
-def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np.ndarray:
-    """Weights ``[R, K]`` (each row sums to 1) ``∝ exp(−(c_k − min c) / λ)`` with λ = ``temperature`` ×
-    the standard deviation of the row's K costs: invariant to the costs' scale and offset. A row
-    whose costs are all equal gets equal weights; ``temperature → 0`` puts all weight on the lowest
-    cost, ``temperature → ∞`` gives equal weights."""
-    c = np.asarray(costs, dtype=np.float64)
-    spread = c.std(axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        z = np.where(spread > 0, (c - c.min(axis=1, keepdims=True)) / (temperature * spread), 0.0)
-    w = np.exp(-z)
-    return w / w.sum(axis=1, keepdims=True)
-
-
-def medoid_index(candidates_mps: np.ndarray) -> np.ndarray:
-    """Per row of ``candidates_mps [R, K, 2]``, the index of the candidate of least summed Euclidean
-    distance to the row's K candidates: ``[R]`` (ties: the lowest index)."""
-    diff = candidates_mps[:, :, None] - candidates_mps[:, None]  # [R, K, K, 2]
-    return np.sqrt((diff ** 2).sum(-1)).sum(2).argmin(1)
 
 
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) -> np.ndarray:

@@ -1,0 +1,175 @@
+"""``madp export``: a MADP policy file as what one robot runs, ONNX graphs and one JSON file.
+
+What a directory made by :func:`export_policy` holds (the robot runtime :mod:`madp.robot` reads it):
+
+=====================  ====================================================================================
+``perception.onnx``    the CNN: ``observation [R, 4, 32, 32]`` float32 -> ``z [R, z_dim]``
+``encoder.onnx``       Psi_E: ``tokens [B, T, 34]``, ``positions_m [B, T, 2]`` float32, ``mask [B, T, T]`` bool
+                       -> ``memory [B, T, d_model]``
+``denoiser.onnx``      Psi_D and the head: ``noisy_actions [B, T, 2]``, ``step [B]`` int64, ``memory``,
+                       ``positions_m``, ``mask`` -> ``eps [B, T, 2]`` (the predicted noise)
+``runtime.json``       what the loop around them needs (:func:`runtime_spec`)
+=====================  ====================================================================================
+
+T, the tokens of a neighbourhood, and the batch axes are dynamic. The sampling loop stays in plain code
+(numpy, :mod:`madp.robot.runtime`), as diffusion policies are usually exported: the graphs hold only
+the networks, the JSON the sampler's constants. ``mask[b, a, c]`` lets token a attend to token c
+(:func:`madp.models.attention_mask.packed_neighbourhood_mask` of one neighbourhood).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from madp.data_schema.manifest import sha256_file
+from madp.errors import InputError, SettingError
+from madp.io.atomic import atomic_path, write_json_atomic
+from madp.policies.checkpoint import load_policy
+from madp.policies.madp import SamplingSettings
+from madp.policies.select import GRID_M
+from madp.sim import SimParams
+
+__all__ = ["FORMAT", "GRAPHS", "OPSET", "export_policy", "export_graphs", "runtime_spec"]
+
+#: ``runtime.json``'s ``format``: the layout the runtime reads.
+FORMAT = "madp-onnx-runtime/1"
+#: The ONNX opset of the graphs.
+OPSET = 17
+#: The graphs, by role, and their file names.
+GRAPHS = {"perception": "perception.onnx", "encoder": "encoder.onnx", "denoiser": "denoiser.onnx"}
+RUNTIME_JSON = "runtime.json"
+
+
+class _Perception(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.cnn = model.cnn
+
+    def forward(self, observation: Tensor) -> Tensor:
+        return self.cnn(observation)
+
+
+class _Encoder(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, tokens: Tensor, positions_m: Tensor, mask: Tensor) -> Tensor:
+        return self.model.encode_tokens(tokens, positions_m, mask)
+
+
+class _Denoiser(nn.Module):
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, noisy_actions: Tensor, step: Tensor, memory: Tensor, positions_m: Tensor, mask: Tensor) -> Tensor:
+        return self.model.denoise(noisy_actions, step, memory, positions_m, mask)
+
+
+def _example(model, tokens: int = 3, batch: int = 2) -> dict[str, Tensor]:
+    cfg = model.config
+    pos = torch.rand(batch, tokens, 2) * cfg.comm_radius_m
+    mask = torch.ones(batch, tokens, tokens, dtype=torch.bool)
+    return {"observation": torch.rand(batch, cfg.obs_channels, cfg.obs_size, cfg.obs_size),
+            "tokens": torch.randn(batch, tokens, cfg.token_dim), "positions_m": pos, "mask": mask,
+            "noisy_actions": torch.randn(batch, tokens, cfg.action_dim),
+            "step": torch.full((batch,), 500, dtype=torch.long), "memory": torch.randn(batch, tokens, cfg.d_model)}
+
+
+def graph_modules(model) -> dict[str, tuple[nn.Module, tuple[str, ...], tuple[str, ...]]]:
+    """The three networks of one robot's step: ``{role: (module, input names, output names)}``, in eval
+    mode (the exporter puts a module back in the mode it found it in, children included)."""
+    return {"perception": (_Perception(model).eval(), ("observation",), ("z",)),
+            "encoder": (_Encoder(model).eval(), ("tokens", "positions_m", "mask"), ("memory",)),
+            "denoiser": (_Denoiser(model).eval(), ("noisy_actions", "step", "memory", "positions_m", "mask"), ("eps",))}
+
+
+def _axes(name: str) -> dict[int, str]:
+    if name in ("observation", "z", "step"):
+        return {0: "batch"}
+    if name == "mask":
+        return {0: "batch", 1: "tokens", 2: "tokens_kv"}
+    return {0: "batch", 1: "tokens"}
+
+
+def export_graphs(model, out_dir: Path) -> dict[str, Path]:
+    """Write the three ONNX graphs of ``model`` (a :class:`madp.models.MADP` in eval mode) into
+    ``out_dir``, each atomically. Returns ``{role: path}``."""
+    model = model.eval()
+    example = _example(model)
+    paths = {}
+    for role, (module, inputs, outputs) in graph_modules(model).items():
+        path = out_dir / GRAPHS[role]
+        with atomic_path(path, ".onnx", fsync=False) as tmp, torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and tracer notes
+            torch.onnx.export(module, tuple(example[n] for n in inputs), str(tmp), dynamo=False, opset_version=OPSET,
+                              input_names=list(inputs), output_names=list(outputs),
+                              dynamic_axes={n: _axes(n) for n in (*inputs, *outputs)})
+        paths[role] = path
+    return paths
+
+
+def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, params: SimParams) -> dict:
+    """``runtime.json``: what the robot's loop needs besides the graphs.
+
+    ``sampler``: DPM-Solver++(2M) over S steps as per-step constants: the model is evaluated at
+    ``timesteps[i]`` and ``x0 = (x - sigma * eps) / alpha``, ``x <- ca * x + cb * x0 + cc * x0_prev``
+    with ``(alpha, sigma, ca, cb, cc) = coefficients[i]`` (:class:`madp.models.samplers.DPMSolverMultistepSampler`);
+    ``action_stats``: actions in m/s are ``x * std + mean``; ``radii``: r_c of the attention mask (and so
+    of the messages a robot listens to) and the world's side (the d4 frame's centre); ``selection``:
+    the frame (``d4``: element :func:`madp.robot.frame.frame_element` of the episode's seed and the
+    step) and the rule keeping one of K samples per robot (:mod:`madp.policies.select`);
+    ``motion``: the simulator constants the rule moves candidates with; ``source``: the checkpoint."""
+    cfg = model.config
+    solver = model.make_sampler(sampling.sampler, sampling.sampling_steps, sampling.eta)
+    return {
+        "format": FORMAT, "kind": "madp", "opset": OPSET, "graphs": dict(GRAPHS),
+        "model": {"obs_channels": cfg.obs_channels, "obs_size": cfg.obs_size, "z_dim": cfg.z_dim,
+                  "token_dim": cfg.token_dim, "d_model": cfg.d_model, "action_dim": cfg.action_dim,
+                  "pos_token": cfg.pos_token, "num_train_steps": cfg.num_train_steps},
+        "sampler": {"name": sampling.sampler, "steps": sampling.sampling_steps, "timesteps": list(solver.timesteps),
+                    "coefficients": [list(c) for c in solver._coef],
+                    "coefficients_are": ["alpha", "sigma", "ca", "cb", "cc"]},
+        "action_stats": {"mean": [float(v) for v in model.action_mean], "std": [float(v) for v in model.action_std]},
+        "radii": {"comm_radius_m": float(cfg.comm_radius_m), "world_size_m": float(cfg.world_size)},
+        "selection": {"frame": sampling.frame, "rule": sampling.select, "candidates": sampling.candidates,
+                      "grid_m": GRID_M},
+        "motion": {"max_speed_mps": params.max_speed_mps, "dt_s": params.dt_s, "world_size": params.world_size,
+                   "comm_radius_m": params.comm_radius_m, "local_map_size": params.local_map_size},
+        "source": {"sha256": sha256, "step": meta.get("step"), "code_version": meta.get("code_version")},
+    }
+
+
+def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSettings | None = None,
+                  params: SimParams | None = None) -> dict:
+    """Export the MADP checkpoint ``policy`` to ``out_dir`` (created): the three graphs and
+    ``runtime.json`` (module docstring). ``sampling``: the loop the JSON describes (default: the
+    evaluation default, DPM-Solver++(2M), S = 3, frame d4, explore among K = 4); ``params``: the
+    simulator constants of its motion (default :class:`SimParams`). Returns the JSON written.
+
+    One-line errors for a file that is not a MADP checkpoint and for settings the runtime does not
+    run (a sampler other than DPM-Solver++, ``fixed_noise``, the ``oracle`` rules that read the world)."""
+    sampling = sampling or SamplingSettings()
+    if sampling.sampler != "dpm++":
+        raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
+    if sampling.fixed_noise:
+        raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
+    if sampling.select in ("oracle", "oracle_cell"):
+        raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
+    policy = Path(policy)
+    model, meta = load_policy(policy)
+    if meta["kind"] != "madp":
+        raise InputError(f"{policy}: is a {meta['kind']} checkpoint; madp export writes MADP's graphs "
+                         "(docs/guides/export.md: LPAC-K3)")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    export_graphs(model, out)
+    spec = runtime_spec(model, meta, sha256_file(policy), sampling, params or SimParams())
+    write_json_atomic(out / RUNTIME_JSON, spec)
+    return spec
+

@@ -1,0 +1,226 @@
+"""One robot's control step of MADP, from the files of ``madp export``, with numpy and onnxruntime only.
+
+Per control step t, robot i (the paper's Fig. 1, as :meth:`madp.models.MADP.sample_decentralized`
+computes it for every robot at once):
+
+1. **frame**: with ``frame="d4"`` every robot moves what it holds by element
+   ``g = frame_element(seed, t)`` of the world's symmetries (:mod:`madp.robot.frame`), which all
+   robots sharing the episode's seed compute alike;
+2. **token** (:meth:`RobotRuntime.message`): ``z_i`` = perception graph on its observation;
+   ``p_i = (x_i - mean of its neighbourhood's positions) / r_c``; it broadcasts
+   ``Message(i, t, x_i, [z_i, p_i])``;
+3. **act** (:meth:`RobotRuntime.step`): from the tokens its inbox brings (:mod:`madp.robot.inbox`:
+   bad messages dropped and counted), it runs the encoder graph once on its neighbourhood (itself and
+   the senders within r_c, ascending by id) and the denoiser graph S times (DPM-Solver++(2M), the
+   constants of ``runtime.json``) on K noise draws as one batch; it keeps its own token's K actions,
+   moves them back to the world's axes, clips them to u_max and keeps one by the selection rule
+   (:mod:`madp.policies.select`'s rules, computed by :mod:`madp.robot.choice`: numpy and numba).
+
+Noise: candidate k of robot j starts from ``noise(ids)[k, j]``; a robot must know its neighbours' noise
+(so every robot of a neighbourhood sees the same swarm sample), and by default derives it from the
+episode's seed, the step and the robot's id (:func:`robot_noise`). Nothing here imports torch.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from madp.errors import InputError
+from .choice import LocalViews, local_cell_costs, medoid_index, mppi_weights
+from madp.sim.network import Message
+from madp.sim.params import SimParams
+
+from .frame import frame_element, inverse_action, transform_observation, transform_points
+from .inbox import InboxCounts, read_inbox
+
+__all__ = ["FORMAT", "RobotRuntime", "StepResult", "robot_noise"]
+
+FORMAT = "madp-onnx-runtime/1"
+RULES = ("none", "cell", "explore", "mppi", "medoid")
+
+Noise = Callable[[np.ndarray], np.ndarray]
+
+
+def robot_noise(seed: int, step: int, ids: np.ndarray, candidates: int) -> np.ndarray:
+    """``[K, T, 2]`` float32 standard normal: robot ``ids[t]``'s starting noise of its K candidates
+    at ``step`` of the episode of ``seed``, a function of those three alone (so its neighbours draw
+    the same)."""
+    out = [np.random.default_rng([int(seed) & ((1 << 63) - 1), int(step), int(i), 0x4D41]).standard_normal((candidates, 2))
+           for i in ids]
+    return np.stack(out, 1).astype(np.float32) if out else np.zeros((candidates, 0, 2), np.float32)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One robot's control step: ``action_mps [2]`` (float64, world axes), the K candidates it chose
+    from ``candidates_mps [K, 2]``, the ``message`` it broadcast and the ``counts`` of its inbox."""
+
+    action_mps: np.ndarray
+    candidates_mps: np.ndarray
+    message: Message
+    counts: InboxCounts
+
+
+class RobotRuntime:
+    """The exported policy in ``directory`` (``madp export``), run with ``threads`` onnxruntime
+    threads (default 1: a robot's one core). ``params``: the motion constants of the selection rule
+    (default: those ``runtime.json`` holds). ``max_age``: the oldest messages used, in steps (0: this
+    step's only). Construction reads and checks the files (a one-line error naming the file)."""
+
+    def __init__(self, directory: str | Path, threads: int = 1, params: SimParams | None = None,
+                 max_age: int | None = 0):
+        import onnxruntime as ort
+
+        self.directory = Path(directory)
+        spec_file = self.directory / "runtime.json"
+        try:
+            spec = json.loads(spec_file.read_text())
+        except FileNotFoundError:
+            raise InputError(f"{spec_file}: not found; make it with madp export POLICY --out {self.directory}") from None
+        except (OSError, ValueError) as e:
+            raise InputError(f"{spec_file}: unreadable ({type(e).__name__})") from None
+        if not isinstance(spec, dict) or spec.get("format") != FORMAT:
+            raise InputError(f"{spec_file}: expected format {FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
+        self.spec = spec
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads, opts.inter_op_num_threads = int(threads), 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        self.sessions = {}
+        for role, name in spec["graphs"].items():
+            try:
+                self.sessions[role] = ort.InferenceSession(str(self.directory / name), opts,
+                                                           providers=["CPUExecutionProvider"])
+            except Exception as e:  # onnxruntime's own error types for a missing or damaged graph
+                raise InputError(f"{self.directory / name}: not a loadable ONNX graph ({type(e).__name__})") from None
+        m, sel = spec["model"], spec["selection"]
+        self.token_dim, self.z_dim, self.action_dim = int(m["token_dim"]), int(m["z_dim"]), int(m["action_dim"])
+        self.offset_token = m["pos_token"] == "neighbourhood_offset"
+        self.radius_m = float(spec["radii"]["comm_radius_m"])
+        self.world_size_m = float(spec["radii"]["world_size_m"])
+        self.timesteps = [int(k) for k in spec["sampler"]["timesteps"]]
+        self.coefficients = [tuple(float(v) for v in c) for c in spec["sampler"]["coefficients"]]
+        self.mean = np.asarray(spec["action_stats"]["mean"], np.float32)
+        self.std = np.asarray(spec["action_stats"]["std"], np.float32)
+        self.frame, self.rule, self.candidates = sel["frame"], sel["rule"], int(sel["candidates"])
+        if self.rule not in RULES:
+            raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(RULES)})")
+        self.params = params or SimParams(**spec["motion"])
+        self.max_age = max_age
+
+    # ------------------------------------------------------------------------------------ helpers
+    def frame_of(self, seed: int, step: int) -> int:
+        """The d4 element of ``step`` of the episode of ``seed`` (0 with ``frame="world"``)."""
+        return frame_element(seed, step) if self.frame == "d4" else 0
+
+    def _in_range(self, own: np.ndarray, others: np.ndarray) -> np.ndarray:
+        """``[M]`` bool: which of ``others [M, 2]`` (frame positions, float32) are within r_c of ``own [2]``,
+        in float32 (as the model's attention mask)."""
+        d2 = ((others - own) ** 2).sum(-1)
+        return d2 < np.float32(self.radius_m * self.radius_m)
+
+    def _offset(self, own: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+        """``p [2]`` float32: the neighbourhood offset of a robot at ``own`` among ``neighbours [M, 2]``."""
+        if not self.offset_token:
+            return np.zeros(2, np.float32)
+        off = (neighbours - own).sum(0) if len(neighbours) else np.zeros(2, np.float32)
+        return (-off / np.float32(len(neighbours) + 1) / np.float32(self.radius_m)).astype(np.float32)
+
+    def token(self, observation: np.ndarray, position_m: np.ndarray, neighbours_m: np.ndarray, g: int) -> np.ndarray:
+        """``[z, p]`` (float32 ``[token_dim]``) of a robot with ``observation [4, S, S]`` at ``position_m``
+        whose neighbours (world axes; those beyond r_c are ignored) are at ``neighbours_m [M, 2]``, in frame g."""
+        obs = transform_observation(np.asarray(observation, np.float32), g) if g else np.asarray(observation, np.float32)
+        z = self.sessions["perception"].run(None, {"observation": obs[None]})[0][0]
+        own = transform_points(np.asarray(position_m, np.float32), g, self.world_size_m)
+        nbr = transform_points(np.asarray(neighbours_m, np.float32).reshape(-1, 2), g, self.world_size_m)
+        nbr = nbr[self._in_range(own, nbr)]
+        return np.concatenate([z.astype(np.float32), self._offset(own, nbr)])
+
+    def message(self, robot_id: int, step: int, observation: np.ndarray, position_m: np.ndarray,
+                neighbours_m: np.ndarray, seed: int) -> Message:
+        """What robot ``robot_id`` broadcasts at ``step``: its position and token (:meth:`token`)."""
+        tok = self.token(observation, position_m, neighbours_m, self.frame_of(seed, step))
+        return Message(int(robot_id), int(step), np.asarray(position_m, np.float64).copy(), tok)
+
+    # ------------------------------------------------------------------------------------- acting
+    def sample(self, tokens: np.ndarray, positions_m: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """The reverse diffusion of one neighbourhood: ``tokens [T, D]``, frame ``positions_m [T, 2]``,
+        ``noise [K, T, 2]`` -> normalised actions ``[K, T, 2]`` (float32)."""
+        t = len(tokens)
+        mask = self._in_range(positions_m[:, None], positions_m[None]) | np.eye(t, dtype=bool)
+        memory = self.sessions["encoder"].run(None, {"tokens": tokens[None], "positions_m": positions_m[None],
+                                                     "mask": mask[None]})[0]
+        k = len(noise)
+        feeds = {"memory": np.repeat(memory, k, 0), "positions_m": np.repeat(positions_m[None], k, 0),
+                 "mask": np.repeat(mask[None], k, 0)}
+        x = np.asarray(noise, np.float32)
+        prev = None
+        for (alp, sig, ca, cb, cc), step in zip(self.coefficients, self.timesteps):
+            eps = self.sessions["denoiser"].run(None, {"noisy_actions": x, "step": np.full(k, step, np.int64), **feeds})[0]
+            x0 = (x - sig * eps) / alp
+            out = cb * x0 if ca == 0.0 else ca * x + cb * x0
+            if cc != 0.0:
+                out = out + cc * prev
+            prev, x = x0, out.astype(np.float32)
+        return x
+
+    def step(self, robot_id: int, step: int, observation: np.ndarray, position_m: np.ndarray, inbox, seed: int,
+             view: LocalViews | None = None, noise: Noise | None = None, own: Message | None = None) -> StepResult:
+        """Robot ``robot_id``'s control step ``step`` of the episode of ``seed``.
+
+        ``observation [4, S, S]`` and ``position_m [2]`` its own; ``inbox``: the :class:`Message`\\ s it
+        received (this step's tokens of its neighbours; bad ones are dropped and counted, never
+        raised); ``view``: its :class:`madp.policies.select.LocalViews` row (R = 1: its own position
+        as the motion rule integrates it, its sensed map's block sums with the ``explore`` prior), for
+        the rules that read its map (``cell``, ``explore``, ``mppi``; the neighbours are taken from
+        the inbox); ``noise(ids) -> [K, T, 2]``: the starting noise of the neighbourhood's robots
+        (default :func:`robot_noise`); ``own``: its message of this step when already computed by
+        :meth:`message` (else computed here from the inbox's positions)."""
+        g = self.frame_of(seed, step)
+        own_f = transform_points(np.asarray(position_m, np.float32), g, self.world_size_m)
+
+        def within(pos: np.ndarray) -> np.ndarray:
+            return self._in_range(own_f, transform_points(pos.astype(np.float32), g, self.world_size_m))
+
+        kept, counts = read_inbox(inbox, robot_id, step, position_m, self.token_dim, self.radius_m, within,
+                                  self.max_age)
+        nbr_m = np.array([p for _, p, _ in kept], np.float64).reshape(-1, 2)
+        if own is None:
+            own = Message(int(robot_id), int(step), np.asarray(position_m, np.float64).copy(),
+                          self.token(observation, position_m, nbr_m, g))
+        members = sorted([(int(robot_id), own.position_m, own.token), *kept], key=lambda m: m[0])
+        ids = np.array([m[0] for m in members], np.int64)
+        me = int(np.flatnonzero(ids == robot_id)[0])
+        tokens = np.stack([m[2] for m in members]).astype(np.float32)
+        pos_f = transform_points(np.stack([m[1] for m in members]).astype(np.float32), g, self.world_size_m)
+        eps0 = noise(ids) if noise is not None else robot_noise(seed, step, ids, self.candidates)
+        x = self.sample(tokens, pos_f, np.asarray(eps0, np.float32).reshape(self.candidates, len(ids), 2))
+        u = (x[:, me] * self.std + self.mean).astype(np.float64)  # [K, 2] m/s in the frame
+        u = inverse_action(u, g) if g else u
+        speed = np.linalg.norm(u, axis=1, keepdims=True)
+        u_max = self.params.max_speed_mps
+        u = np.where(speed > u_max, u * (u_max / np.maximum(speed, 1e-12)), u)
+        return StepResult(self.choose(u, view, nbr_m), u, own, counts)
+
+    def choose(self, candidates_mps: np.ndarray, view: LocalViews | None, neighbours_m: np.ndarray) -> np.ndarray:
+        """The action ``[2]`` the selection rule keeps among ``candidates_mps [K, 2]`` (world axes)."""
+        if self.rule == "none" or len(candidates_mps) == 1:
+            return candidates_mps[0]
+        if self.rule == "medoid":
+            return candidates_mps[int(medoid_index(candidates_mps[None])[0])]
+        if view is None:
+            raise ValueError(f"selection rule {self.rule} reads the robot's map: step() needs its view")
+        m = max(len(neighbours_m), 1)
+        nbr = np.zeros((1, m, 2))
+        nbr[0, :len(neighbours_m)] = neighbours_m
+        valid = np.zeros((1, m), bool)
+        valid[0, :len(neighbours_m)] = True
+        row = LocalViews(view.start_m, view.offset_m, view.weights, view.origin_m, nbr, valid)
+        costs = local_cell_costs(row, candidates_mps[None], self.params)
+        if self.rule == "mppi":
+            return np.einsum("k,kd->d", mppi_weights(costs)[0], candidates_mps)
+        return candidates_mps[int(costs[0].argmin())]

@@ -1,0 +1,83 @@
+"""madp export: each graph against PyTorch on the same inputs (1e-5), a dynamic token axis, and the
+command on the shipped policy (graphs, runtime.json with the sampler's constants and the sha256)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from madp.data_schema.manifest import sha256_file
+from madp.export.onnx import GRAPHS, graph_modules
+from madp.policies import shipped_checkpoint
+from tests.robot.robot_testutils import export_tiny
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny-export")
+    return export_tiny(out), out
+
+
+def _inputs(model, tokens: int, batch: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
+    cfg = model.config
+    pos = torch.rand(batch, tokens, 2, generator=gen) * 600 + 200
+    d2 = (pos[:, :, None] - pos[:, None]).square().sum(-1)
+    return {"observation": torch.rand(batch, 4, 32, 32, generator=gen),
+            "tokens": torch.randn(batch, tokens, cfg.token_dim, generator=gen), "positions_m": pos,
+            "mask": (d2 < cfg.comm_radius_m ** 2) | torch.eye(tokens, dtype=torch.bool),
+            "noisy_actions": torch.randn(batch, tokens, 2, generator=gen),
+            "step": torch.randint(1, 1001, (batch,), generator=gen),
+            "memory": torch.randn(batch, tokens, cfg.d_model, generator=gen)}
+
+
+@pytest.mark.parametrize("tokens,batch", [(1, 1), (5, 4), (13, 2)])
+def test_each_graph_matches_pytorch(tiny, tokens, batch):
+    model, out = tiny
+    x = _inputs(model, tokens, batch, torch.Generator().manual_seed(tokens))
+    for role, (module, inputs, _) in graph_modules(model).items():
+        with torch.no_grad():
+            ref = module(*(x[n] for n in inputs)).numpy()
+        sess = ort.InferenceSession(str(out / GRAPHS[role]), providers=["CPUExecutionProvider"])
+        got = sess.run(None, {n: x[n].numpy() for n in inputs})[0]
+        assert got.shape == ref.shape
+        assert np.abs(got - ref).max() <= 1e-5, role
+
+
+def test_export_command_on_the_shipped_policy(tmp_path):
+    from typer.testing import CliRunner
+
+    from madp.cli import app
+
+    ship = shipped_checkpoint("madp")
+    res = CliRunner().invoke(app, ["export", str(ship), "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert {p.name for p in tmp_path.iterdir()} == {*GRAPHS.values(), "runtime.json"}
+    spec = json.loads((tmp_path / "runtime.json").read_text())
+    assert spec["source"]["sha256"] == sha256_file(ship)
+    assert spec["sampler"]["name"] == "dpm++" and spec["sampler"]["steps"] == 3 == len(spec["sampler"]["coefficients"])
+    assert spec["selection"] == {"frame": "d4", "rule": "explore", "candidates": 4, "grid_m": 4}
+    assert spec["radii"]["comm_radius_m"] == 256.0 and len(spec["action_stats"]["std"]) == 2
+    # the real policy's graphs against PyTorch too, on a neighbourhood of 7 tokens
+    from madp.policies import load
+
+    model = load(ship, "madp")[0]
+    x = _inputs(model, 7, 4, torch.Generator().manual_seed(1))
+    for role, (module, inputs, _) in graph_modules(model).items():
+        with torch.no_grad():
+            ref = module(*(x[n] for n in inputs)).numpy()
+        got = ort.InferenceSession(str(tmp_path / GRAPHS[role]), providers=["CPUExecutionProvider"]).run(
+            None, {n: x[n].numpy() for n in inputs})[0]
+        assert np.abs(got - ref).max() <= 1e-5, role
+
+
+def test_export_refuses_what_a_robot_cannot_run(tmp_path):
+    from tests.test_cli import madp
+
+    r = madp("export", str(shipped_checkpoint("madp")), "--out", str(tmp_path), "--select", "oracle")
+    assert r.returncode == 2 and "oracle" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = madp("export", str(shipped_checkpoint("lpac")), "--out", str(tmp_path))
+    assert r.returncode == 2 and "lpac" in r.stderr
