@@ -156,7 +156,7 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
     elif suite == "faults":
         from madp.sim import SimParams
 
-        from .faults_plot import plot_faults
+        from .faults import plot_faults
 
         record(plot_faults(suite_dir / "faults.png", column(results, "final_cost").astype(float),
                            column(results, "group"), column(results, "controller"), controllers, colors, suite,
@@ -173,6 +173,14 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
     md = [markdown_table(summary, suite).rstrip("\n")]
     if summary["sampling"]:
         md += ["", sampling_markdown(summary["sampling"])]
+    if suite == "faults":
+        from .faults import paired_against_ideal, paired_markdown
+
+        summary["paired_against_ideal"] = paired_against_ideal(
+            column(results, "final_cost").astype(float), column(results, "group"), column(results, "env"),
+            column(results, "controller"), controllers)
+        if summary["paired_against_ideal"]:
+            md += ["", paired_markdown(summary["paired_against_ideal"])]
     plots = [name for name in written if name.endswith(".png")]
     if plots:
         md += ["", "Plots:", ""] + [f"![{name[:-4]}]({name})" for name in plots]

@@ -34,6 +34,8 @@ def test_faults_suite_writes_its_plot_and_records_the_links(tmp_path):
     results = pq.read_table(suite_dir / "results.parquet").to_pandas()
     assert sorted(results.group) == ["fail_25", "ideal", "loss_50"]
     assert (suite_dir / "faults.png").stat().st_size > 0
+    md = (suite_dir / "summary.md").read_text()
+    assert "paired by environment" in md and "| loss_50 | " in md and "| fail_25 | " in md
     _, meta, msgs = _read(suite_dir / "rollouts" / "ideal-000-dcvt.mcap")
     assert any(k.startswith("network.") for k in next(iter(meta.values())))
     links = [d for topic, _, _, d in msgs if topic == "/network/links"]
