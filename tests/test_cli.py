@@ -100,7 +100,7 @@ def test_a_bug_prints_its_traceback_and_asks_for_a_report(tmp_path, monkeypatch)
     (["datagen", "--n", "8", "--beta", "0.5"], "madp: error: --beta: only meaningful with a policy"),
     (["eval", "--sampler", "euler"], "madp: error: --sampler: expected one of ['ddim', 'dpm++'], got 'euler'"),
     (["eval", "--suite", "moon"], "madp: error: --suite: expected one of ['uniform', 'sigma', 'cities', 'launch', "
-                                  "'scale', 'all', 'symmetry'] or a comma-separated list, got 'moon'"),
+                                  "'scale', 'all', 'symmetry', 'faults'] or a comma-separated list, got 'moon'"),
     (["datagen", "--n", "8", "--world-size", "100"],
      "madp: error: --world-size must be a multiple of 16 and >= local_map_size, got 100"),
 ])
