@@ -268,7 +268,7 @@ stage eval madp eval --suite "$EVAL_SUITES" --controllers "$EVAL_CONTROLLERS" --
 
 # --- 9. latency per control step on the device (random weights of each preset: latency does not depend on them) --
 stage bench madp bench infer --no-sweep --device "$DEVICE" --presets "$BENCH_PRESETS" --grid "$BENCH_GRID" \
-  --repeats "$BENCH_REPEATS" --out "$WORK/bench-infer.json"
+  --repeats "$BENCH_REPEATS" --no-robot --out "$WORK/bench-infer.json"  # the robot runtime is a CPU figure: madp bench infer on the CPU
 
 # --- 10. pack -----------------------------------------------------------------------------------------------
 pack
