@@ -50,8 +50,9 @@ class LPACPolicy:
         products, bit for bit."""
         model, cfg, dev = self.model, self.model.config, self.device
         b, n = own.shape[:2]
-        held = torch.from_numpy(np.stack([e.neighbour_view()[1] for e in envs]).astype(np.float32)).to(dev)
-        known = torch.from_numpy(np.stack([e.neighbour_view()[0] for e in envs])).to(dev)
+        views = [e.neighbour_view() for e in envs]  # each robot's (known [N, N], held positions [N, N, 2])
+        held = torch.from_numpy(np.stack([v[1] for v in views]).astype(np.float32)).to(dev)
+        known = torch.from_numpy(np.stack([v[0] for v in views])).to(dev)
         r2 = cfg.comm_radius_m * cfg.comm_radius_m
         adj = known & ((held - own[:, :, None]).square().sum(-1) < r2)  # [B, N, N]: i's graph, edges j -> i
         bb, ii, jj = adj.nonzero(as_tuple=True)

@@ -181,9 +181,10 @@ class MADPPolicy:
 
         moved = [transform_state(o, x, g, world) for o, x, g in zip(obs, own, gs)]
         obs, own_f = torch.stack([m[0] for m in moved]), torch.stack([m[1] for m in moved])
-        held = torch.stack([frame(e.neighbour_view()[1], k) for k, e in enumerate(envs)])  # [B, N, N, 2]
+        views = [e.neighbour_view() for e in envs]  # each robot's (known [N, N], held positions [N, N, 2])
+        held = torch.stack([frame(v[1], k) for k, v in enumerate(views)])  # [B, N, N, 2]
         held = torch.where(eye[..., None], own_f[:, :, None], held)
-        known = torch.from_numpy(np.stack([e.neighbour_view()[0] for e in envs])).to(dev)
+        known = torch.from_numpy(np.stack([v[0] for v in views])).to(dev)
         near = (held - own_f[:, :, None]).square().sum(-1) < r2
         mask = (known & near) | eye
         tokens = model.embed_tokens(obs, own_f, mask, None, offsets_m=held - own_f[:, :, None])  # [B, N, T]
