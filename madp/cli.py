@@ -110,6 +110,7 @@ def datagen(
     overwrite: bool = typer.Option(False, help="Replace a dataset made with other parameters: removes only the files madp wrote there (its manifest, shard records and the shards they list); any other file makes it refuse, naming the file."),
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
+    select: str = typer.Option("none", help="With an MADP --policy: its rule to choose among its samples, at the rule's default K (none: one sample per robot; explore: the evaluation default). The manifest records it."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
     launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; docs/guides/datasets.md)."),
     ray: Optional[str] = ray_option(),
@@ -121,7 +122,7 @@ def datagen(
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius_m)
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
-                        policy=learner_settings(policy, beta), max_steps=max_steps or (600 if policy else 2100),
+                        policy=learner_settings(policy, beta, select), max_steps=max_steps or (600 if policy else 2100),
                         launch=launch)
     run_datagen(cfg, out, workers=workers, shards=parse_shards(shards), overwrite=overwrite, ray=ray)
 

@@ -4,7 +4,7 @@ interface, ``controller(env: CoverageEnv) -> actions [N, 2] m/s``.
 =================  ==================================================================
 ``clairvoyant``    the expert: Lloyd's step on the full world map (:class:`madp.sim.ClairvoyantCVT`)
 ``dcvt``           decentralized CVT on each robot's own map (:class:`madp.sim.DecentralizedCVT`)
-``lpac``           LPAC-K3 (:class:`madp.policies.LPACPolicy`)
+``lpac``           LPAC-K3 (:class:`madp.policies.lpac.LPACPolicy`)
 ``madp``           MADP, each robot sampling from its own neighbourhood (decentralized)
 ``madp_central``   MADP, one masked pass over the whole swarm (centralized)
 =================  ==================================================================
@@ -85,7 +85,7 @@ CONTROLLERS: dict[str, ControllerInfo] = {c.name: c for c in (
     ControllerInfo("clairvoyant", CLASSICAL_KIND, "Clairvoyant", "clairvoyant CVT", "#444444", None,
                    "madp.sim.controllers:ClairvoyantCVT", oracle=True),
     ControllerInfo("dcvt", CLASSICAL_KIND, "DCVT", "DCVT", "#1f77b4", "dcvt", "madp.sim.controllers:DecentralizedCVT"),
-    ControllerInfo("lpac", "lpac", "LPAC-K3", "LPAC-K3", "#ff7f0e", "lpac", "madp.policies:LPACPolicy"),
+    ControllerInfo("lpac", "lpac", "LPAC-K3", "LPAC-K3", "#ff7f0e", "lpac", "madp.policies.lpac:LPACPolicy"),
     ControllerInfo("madp", "madp", "MADP", "MADP (decentralized)", "#d62728", "madp", "madp.policies:MADPPolicy",
                    mode="decentralized"),
     ControllerInfo("madp_central", "madp", "MADP (central)", "MADP (centralized-masked)", "#9467bd", "madp",

@@ -45,9 +45,10 @@ class DatagenConfig:
     bands and clusters of a training distribution: :func:`madp.sim.launch.draw_launch`)."""
     policy: dict = field(default_factory=dict)
     """Empty: the expert drives (the default). Otherwise the learned policy that drives, for expert
-    relabelling (DAgger): ``{"path", "sha256", "kind", "beta", "parent"}`` — the checkpoint, its
-    sha256, ``madp`` (decentralized, the default sampler) or ``lpac``, the probability ``beta`` that
-    a step executes the expert's action instead, and the dataset the policy was trained on (from the
+    relabelling (DAgger): ``{"path", "sha256", "kind", "beta", "parent"}`` and, for MADP choosing
+    among its samples, ``"select"`` — the checkpoint, its sha256, ``madp`` (decentralized, the default
+    sampler) or ``lpac``, the probability ``beta`` that a step executes the expert's action instead, the
+    rule (absent: one sample per robot), and the dataset the policy was trained on (from the
     checkpoint's metadata). Episodes then run exactly ``max_steps`` steps (the expert's labels never
     end them), so late-episode states are recorded at the rate a rollout of that length visits them."""
 
@@ -104,6 +105,8 @@ class DatagenConfig:
             parts.append(f"--launch {self.launch}")
         if self.policy:
             parts.append(f"--policy {self.policy['path']} --beta {self.policy['beta']:g} --max-steps {self.max_steps}")
+            if "select" in self.policy:
+                parts.append(f"--select {self.policy['select']}")
         elif self.max_steps != 2100:
             parts.append(f"--max-steps {self.max_steps}")
         return " ".join(parts)

@@ -24,26 +24,37 @@ PARENT_KEYS = ("root", "num_samples", "created_by", "more")
 _verified: set = set()  # (path, sha256) of the policy files checked in this process
 
 
-def learner_settings(policy: str | Path | None, beta: float = 0.0) -> dict:
+def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str = "none") -> dict:
     """The ``policy`` setting of a relabelling plan: the policy file's path, checksum and kind, the
-    probability ``beta`` that a step executes the expert's action, and the policy's parent dataset;
-    ``{}`` (the expert drives) without a policy, where a ``beta`` is refused."""
+    probability ``beta`` that a step executes the expert's action, MADP's selection rule ``select``
+    (recorded only when it is not ``none``, one sample per robot) and the policy's parent dataset;
+    ``{}`` (the expert drives) without a policy, where a ``beta`` or a ``select`` is refused."""
     from madp.policies.checkpoint import load_policy
+    from madp.policies.select import SELECTS
 
     if policy is None:
         if beta:
             raise SettingError("beta", "only meaningful with a policy")
+        if select != "none":
+            raise SettingError("select", "only meaningful with a policy")
         return {}
+    if select not in SELECTS:
+        raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
     policy = Path(policy)
     _, meta = load_policy(policy)
+    if select != "none" and meta["kind"] != "madp":
+        raise SettingError("select", f"only MADP chooses among samples; {policy} is {meta['kind']}")
     return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
+            **({"select": select} if select != "none" else {}),
             "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}
 
 
 def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray], np.ndarray]:
     """What moves the swarm in a relabelling rollout: ``driver(env, expert_u) -> u`` executes the
     expert's action with probability beta (one draw per step) and the learned policy's otherwise:
-    MADP with one sample per robot (``select none``, whatever the evaluation default), or LPAC-K3.
+    MADP with the plan's selection rule at its default K (one sample per robot, ``select none``, unless
+    the plan names one; never the evaluation default implicitly, so a dataset's bytes do not change
+    with that default), or LPAC-K3.
 
     The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
     here, so a shard's bytes do not depend on which process makes it or how many there are."""
@@ -57,7 +68,7 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
         if sha256_file(policy["path"]) != policy["sha256"]:
             raise InputError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
         _verified.add(key)
-    learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=SamplingSettings.of(select="none"))
+    learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=SamplingSettings.of(select=policy.get("select", "none")))
     coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
     beta = float(policy["beta"])
 

@@ -98,6 +98,8 @@ def test_relabelling_refusals(tmp_path):
     ckpt = tmp_path / "p.safetensors"
     ckpt.write_bytes(shipped_checkpoint("lpac").read_bytes())
     for args, needle in [(["--beta", 1.5, "--policy", ckpt], "--beta"), (["--beta", 0.5], "--beta"),
+                         (["--select", "explore"], "--select"), (["--select", "explore", "--policy", ckpt], "--select"),
+                         (["--select", "best", "--policy", shipped_checkpoint("madp")], "--select"),
                          (["--policy", tmp_path / "none.safetensors"], "none.safetensors")]:
         assert_one_line(*cli("datagen", "--n", 20, "--out", tmp_path / "x", *args, *SMALL), needle)
     # the checkpoint changes between the plan and a resumed run: its sha256 is part of the plan, so the
@@ -133,3 +135,26 @@ def test_the_learner_draws_one_sample_per_robot_whatever_the_evaluation_default(
         for env in envs:
             env.step(u_drive)
     assert differs
+
+
+def test_select_drives_as_the_evaluation_default_and_is_recorded(tmp_path):
+    """``--select explore``: MADP drives choosing among its samples, as the evaluation default does
+    (the same actions as that controller, step by step), and the plan and manifest say so."""
+    from madp.controllers import make_controller
+    from madp.datagen.relabel import learner_driver, learner_settings
+    from madp.policies.select import DEFAULT_SELECT
+
+    path, seed = shipped_checkpoint("madp"), 11
+    settings = learner_settings(path, select=DEFAULT_SELECT)
+    assert settings["select"] == DEFAULT_SELECT and "select" not in learner_settings(path)
+    drive, default = learner_driver(settings, seed), make_controller("madp", str(path), seed=seed)
+    envs = [CoverageEnv(Scenario.random(5, PARAMS)) for _ in range(2)]
+    for _ in range(4):
+        u_drive, u_default = drive(envs[0], None), default(envs[1])
+        np.testing.assert_array_equal(u_drive, u_default)
+        for env in envs:
+            env.step(u_drive)
+    madp("datagen", "--n", 22, "--out", tmp_path / "s", "--workers", 1, "--policy", path, "--select", "explore",
+         *SMALL)
+    m = Manifest.load(tmp_path / "s" / "manifest.json")
+    assert m.params["policy"]["select"] == "explore" and m.created_by.endswith("--select explore")

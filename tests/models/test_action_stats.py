@@ -8,7 +8,7 @@ import torch
 
 from madp.models import MADP, lpac_config
 from madp.models.lpac import LPAC
-from madp.policies import LPACPolicy
+from madp.policies.lpac import LPACPolicy
 from madp.sim import CoverageEnv, Scenario, SimParams
 from .models_testutils import tiny_madp_config
 

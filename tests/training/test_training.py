@@ -271,7 +271,8 @@ def test_shipped_checkpoints_match_their_record_load_and_act_like_trained_polici
     loader, or lost action statistics."""
     import hashlib
 
-    from madp.policies import SHIPPED, LPACPolicy, MADPPolicy, load, shipped_checkpoint
+    from madp.policies import SHIPPED, MADPPolicy, load, shipped_checkpoint
+    from madp.policies.lpac import LPACPolicy
     from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario, SimParams
 
     prov = json.loads((Path(__file__).resolve().parents[2] / "madp" / "checkpoints" / "provenance.json").read_text())
