@@ -46,7 +46,7 @@ def test_symmetry_suite_images_are_the_same_world():
     for layout in ("line", "square"):
         images = [CoverageEnv(envs[f"{layout}_d4-{g}-000"].scenario()) for g in range(D4_SIZE)]
         base, dcvt = images[0], DecentralizedCVT()  # image 0: the layout itself
-        for _ in range(15):
+        for _ in range(6):
             for env in images:
                 env.step(dcvt(env))
         for g, env in enumerate(images):
