@@ -95,14 +95,20 @@ def _block_sums(maps, own, starts, g, b):  # pragma: no cover (compiled)
 def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
     """``views`` with each robot's unexplored blocks of its window (inside the world) given the mean
     mass of its explored ones (1 when those hold none): the weights ``explore`` uses. Reads the
-    robot's own explored map, sampled at each window block's centre."""
+    robot's own explored map: a window block is explored when every cell of it is (the explored
+    blocks of its four corner cells), and inside when every cell of it is in the world; both rules
+    are kept by the world's 8 symmetries, so the choice is exactly equivariant."""
     g = views.weights.shape[1]
     pad, w = env.maps.pad, env.params.world_size
-    centre = views.origin_m.astype(np.int64)[:, :, None] + pad + GRID_M * np.arange(g) + GRID_M // 2  # [N, 2, G], padded
-    idx = centre // EXPLORED_BLOCK_M
-    n = np.arange(len(centre))[:, None, None]
-    explored = env.maps.explored[n, idx[:, 0, :, None], idx[:, 1, None, :]]  # [N, G, G]
-    inside = ((centre >= pad) & (centre < pad + w))
+    first = views.origin_m.astype(np.int64)[:, :, None] + pad + GRID_M * np.arange(g)  # [N, 2, G], padded
+    last = first + GRID_M - 1
+    n = np.arange(len(first))[:, None, None]
+    explored = np.ones((len(first), g, g), bool)
+    for cx in (first, last):  # a window block is explored when every cell of it is: its four corners' blocks
+        for cy in (first, last):
+            ix, iy = cx[:, 0] // EXPLORED_BLOCK_M, cy[:, 1] // EXPLORED_BLOCK_M
+            explored &= env.maps.explored[n, ix[:, :, None], iy[:, None, :]]
+    inside = (first >= pad) & (last < pad + w)  # every cell of the block in the world
     inside = inside[:, 0, :, None] & inside[:, 1, None, :]
     seen = explored & inside
     mass = np.where(seen, views.weights, 0.0).sum((1, 2)) / np.maximum(seen.sum((1, 2)), 1)
