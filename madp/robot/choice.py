@@ -100,14 +100,19 @@ def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
     are kept by the world's 8 symmetries, so the choice is exactly equivariant."""
     g = views.weights.shape[1]
     pad, w = env.maps.pad, env.params.world_size
-    first = views.origin_m.astype(np.int64)[:, :, None] + pad + GRID_M * np.arange(g)  # [N, 2, G], padded
+    corner = views.origin_m.astype(np.int64) + pad  # [N, 2]: each window's first cell, padded
+    first = corner[:, :, None] + GRID_M * np.arange(g)  # [N, 2, G]: each window block's first cell
     last = first + GRID_M - 1
-    n = np.arange(len(first))[:, None, None]
-    explored = np.ones((len(first), g, g), bool)
-    for cx in (first, last):  # a window block is explored when every cell of it is: its four corners' blocks
-        for cy in (first, last):
-            ix, iy = cx[:, 0] // EXPLORED_BLOCK_M, cy[:, 1] // EXPLORED_BLOCK_M
-            explored &= env.maps.explored[n, ix[:, :, None], iy[:, None, :]]
+    # A window block is explored when every cell of it is: when the explored blocks of its four corner
+    # cells are. Window block a starts in explored block corner // 4 + a (GRID_M = EXPLORED_BLOCK_M) and
+    # reaches into the next one when the window's corner is not on the explored grid (per robot and axis).
+    lo = corner // EXPLORED_BLOCK_M
+    straddles = (corner % EXPLORED_BLOCK_M != 0)[:, :, None, None]  # [N, 2, 1, 1]
+    span = np.minimum(lo[:, :, None] + np.arange(g + 1), env.maps.explored.shape[1] - 1)  # [N, 2, G + 1]
+    n = np.arange(len(corner))[:, None, None]
+    slab = env.maps.explored[n, span[:, 0, :, None], span[:, 1, None, :]]  # [N, G + 1, G + 1]
+    rows = slab[:, :-1] & (slab[:, 1:] | ~straddles[:, 0])  # [N, G, G + 1]
+    explored = rows[:, :, :-1] & (rows[:, :, 1:] | ~straddles[:, 1])  # [N, G, G]
     inside = (first >= pad) & (last < pad + w)  # every cell of the block in the world
     inside = inside[:, 0, :, None] & inside[:, 1, None, :]
     seen = explored & inside

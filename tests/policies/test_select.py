@@ -203,6 +203,27 @@ def test_explore_counts_unexplored_blocks_at_the_mean_of_explored_ones():
     np.testing.assert_array_equal(select_actions("explore", lone, cands)[0], [3.0, 3.0])
 
 
+def test_explore_prior_is_on_exactly_the_blocks_not_explored_in_every_cell():
+    """The prior is added to exactly the window blocks inside the world with a cell outside the
+    robot's explored map, checked cell by cell on robots whose window corners are on and off the 4 m
+    explored grid (a block read at its centre cell alone misses the ones whose other cells straddle)."""
+    rng = np.random.default_rng(4)
+    env = CoverageEnv(_scenario(ROBOTS))
+    for _ in range(7):
+        env.step(rng.normal(scale=2.5, size=(len(ROBOTS), 2)))
+    views = local_views(env)
+    added = explore_prior(env, views).weights - views.weights
+    pad, w, g = env.maps.pad, env.params.world_size, views.weights.shape[1]
+    corner = views.origin_m.astype(np.int64) + pad
+    assert len(set((corner % EXPLORED_BLOCK_M).ravel().tolist())) > 1  # on and off the explored grid
+    for r in range(len(ROBOTS)):
+        cells = corner[r][:, None] + np.arange(g * 4)  # [2, 4G] padded cells of the window, per axis
+        known = env.maps.explored[r][np.ix_(cells[0] // EXPLORED_BLOCK_M, cells[1] // EXPLORED_BLOCK_M)]
+        all_known = known.reshape(g, 4, g, 4).all((1, 3))
+        inside = ((cells >= pad) & (cells < pad + w)).reshape(2, g, 4).all(2)
+        np.testing.assert_array_equal(added[r] > 0, ~all_known & inside[0][:, None] & inside[1][None, :])
+
+
 def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
     env = CoverageEnv(_scenario(ROBOTS))
     cands = _candidates(3, 5)
