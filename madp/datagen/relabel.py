@@ -30,7 +30,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
     (recorded only when it is not ``none``, one sample per robot) and the policy's parent dataset;
     ``{}`` (the expert drives) without a policy, where a ``beta`` or a ``select`` is refused."""
     from madp.policies.checkpoint import load_policy
-    from madp.policies.select import SELECTS
+    from madp.policies.select import check_selection, default_candidates
 
     if policy is None:
         if beta:
@@ -38,8 +38,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
         if select != "none":
             raise SettingError("select", "only meaningful with a policy")
         return {}
-    if select not in SELECTS:
-        raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
+    check_selection(select, default_candidates(select))
     policy = Path(policy)
     _, meta = load_policy(policy)
     if select != "none" and meta["kind"] != "madp":
@@ -68,7 +67,8 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
         if sha256_file(policy["path"]) != policy["sha256"]:
             raise InputError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
         _verified.add(key)
-    learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=SamplingSettings.of(select=policy.get("select", "none")))
+    sampling = SamplingSettings.of(select=policy.get("select", "none"))
+    learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=sampling)
     coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
     beta = float(policy["beta"])
 
