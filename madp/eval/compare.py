@@ -35,6 +35,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from madp.errors import InputError, SettingError
+from madp.io.jsonfile import read_json
 
 from .stats import CONFIDENCE, grouped_stats, order_controllers, order_groups
 
@@ -91,12 +92,7 @@ def load_run(path: str | Path, name: str | None = None) -> Run:
         if below:
             raise InputError(f"{path}: holds the suites {', '.join(below)}, not one; pass one of them, e.g. {path / below[0]}")
         raise InputError(f"{results_file}: not found; expected a finished madp eval suite directory (OUT/<suite>/)")
-    try:
-        config = json.loads(config_file.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{config_file}: not found; expected a finished madp eval suite directory (OUT/<suite>/)") from None
-    except (OSError, ValueError) as e:
-        raise InputError(f"{config_file}: unreadable ({type(e).__name__}: {e})") from None
+    config = read_json(config_file, "expected a finished madp eval suite directory (OUT/<suite>/)")
     if not isinstance(config, dict) or not isinstance(config.get("suite"), str) or not isinstance(config.get("steps"), int):
         raise InputError(f"{config_file}: expected madp eval's config (a JSON object with 'suite' and 'steps')")
     try:

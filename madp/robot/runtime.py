@@ -23,7 +23,6 @@ episode's seed, the step and the robot's id (:func:`robot_noise`). Nothing here 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -31,6 +30,7 @@ from typing import Callable
 import numpy as np
 
 from madp.errors import InputError
+from madp.io.jsonfile import read_json
 from .choice import LocalViews, local_cell_costs, medoid_index, mppi_weights
 from madp.sim.network import Message
 from madp.sim.params import SimParams
@@ -78,12 +78,7 @@ class RobotRuntime:
 
         self.directory = Path(directory)
         spec_file = self.directory / "runtime.json"
-        try:
-            spec = json.loads(spec_file.read_text())
-        except FileNotFoundError:
-            raise InputError(f"{spec_file}: not found; make it with madp export POLICY --out {self.directory}") from None
-        except (OSError, ValueError) as e:
-            raise InputError(f"{spec_file}: unreadable ({type(e).__name__})") from None
+        spec = read_json(spec_file, f"make it with madp export POLICY --out {self.directory}")
         if not isinstance(spec, dict) or spec.get("format") != FORMAT:
             raise InputError(f"{spec_file}: expected format {FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
         self.spec = spec

@@ -110,4 +110,6 @@ def test_compare_refuses_other_environments_and_missing_runs(runs, tmp_path):
     pq.write_table(table.set_column(table.column_names.index("final_cost"), "final_cost", pa.array(cost)),
                    broken / "results.parquet")
     assert_one_line(*cli("eval", "compare", a, broken, "--out", out), "results.parquet: final_cost is nan for controller 'lpac', group 'uniform', env 2")
+    (broken / "config.json").write_text((a / "config.json").read_text()[:40])  # a truncated config
+    assert_one_line(*cli("eval", "compare", a, broken, "--out", out), "config.json: unreadable (JSONDecodeError")
     assert not out.exists()
