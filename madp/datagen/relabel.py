@@ -27,7 +27,8 @@ _verified: set = set()  # (path, sha256) of the policy files checked in this pro
 def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str = "none") -> dict:
     """The ``policy`` setting of a relabelling plan: the policy file's path, checksum and kind, the
     probability ``beta`` that a step executes the expert's action, MADP's selection rule ``select``
-    (recorded only when it is not ``none``, one sample per robot) and the policy's parent dataset;
+    with its default K and S (recorded only when it is not ``none``, one sample per robot) and the
+    policy's parent dataset;
     ``{}`` (the expert drives) without a policy, where a ``beta`` or a ``select`` is refused."""
     from madp.policies.checkpoint import load_policy
     from madp.policies.select import check_selection, default_candidates
@@ -43,15 +44,19 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
     _, meta = load_policy(policy)
     if select != "none" and meta["kind"] != "madp":
         raise SettingError("select", f"only MADP chooses among samples; {policy} is {meta['kind']}")
+    if select != "none":  # the rule's K and S as they are today: a later default does not change the data
+        from madp.policies.madp import default_sampling_steps
+
+        chosen = {"select": select, "candidates": default_candidates(select), "sampling_steps": default_sampling_steps(select)}
     return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
-            **({"select": select} if select != "none" else {}),
+            **(chosen if select != "none" else {}),
             "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}
 
 
 def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray], np.ndarray]:
     """What moves the swarm in a relabelling rollout: ``driver(env, expert_u) -> u`` executes the
     expert's action with probability beta (one draw per step) and the learned policy's otherwise:
-    MADP with the plan's selection rule at its default K (one sample per robot, ``select none``, unless
+    MADP with the plan's selection rule at the plan's K and S (one sample per robot, ``select none``, unless
     the plan names one; never the evaluation default implicitly, so a dataset's bytes do not change
     with that default), or LPAC-K3.
 
@@ -67,7 +72,11 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
         if sha256_file(policy["path"]) != policy["sha256"]:
             raise InputError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
         _verified.add(key)
-    sampling = SamplingSettings.of(select=policy.get("select", "none"))
+    # plans that name a rule without its K and S were made when the default was K = 4 at S = 3
+    select = policy.get("select", "none")
+    sampling = SamplingSettings.of(select=select, **({"candidates": policy.get("candidates", 4),
+                                                     "sampling_steps": policy.get("sampling_steps", 3)}
+                                                    if select != "none" else {}))
     learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=sampling)
     coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
     beta = float(policy["beta"])

@@ -14,11 +14,11 @@
    the same run) and each sampler at its S\\*; medians of ``repeats`` calls.
 4. The **best** setting: the (sampler, S\\*) of lowest cpu-preset decentralized latency.
 5. ``cost_vs_steps.png``: mean cost ± SE against S per sampler, with DDIM-50's band.
-6. With ``candidates`` (``--candidates 1,4,16``): the latency of one whole decentralized MADP control
-   step (cpu preset, the default sampler) with K samples per robot and each rule that chooses among
+6. With ``candidates`` (``--candidates 1,4,16``; ``K:S`` at S sampler steps): the latency of one whole decentralized MADP control
+   step (cpu preset, the default sampler at each rule's default S) with K samples per robot and each rule that chooses among
    them (:mod:`madp.policies.select`): :func:`bench_select`.
 7. With ``robot`` (``--robot``, the default where onnxruntime imports): one robot's control step through
-   the files of ``madp export`` on one thread, K = 4, beside PyTorch's per robot
+   the files of ``madp export`` on one thread, at the evaluation default's sampling, beside PyTorch's per robot
    (:mod:`madp.export.bench`).
 
 The paper reports 0.36 s per control step (N = 32) on an RTX 3090.
@@ -77,25 +77,37 @@ def parse_grid(text: str) -> dict[str, tuple[int, ...]]:
     return grid
 
 
-def parse_candidates(text: str) -> tuple[int, ...]:
-    """``"1,4,16"`` -> ``(1, 4, 16)``: the K whose selection latency is measured (each >= 1)."""
-    try:
-        ks = tuple(sorted({int(v) for v in text.split(",") if v.strip()}))
-    except ValueError:
-        raise SettingError("candidates", f"expected comma-separated whole numbers, got {text!r}") from None
-    if not ks or ks[0] < 1:
-        raise SettingError("candidates", f"expected comma-separated whole numbers >= 1, got {text!r}")
-    return ks
+def parse_candidates(text: str) -> tuple[tuple[int, int | None], ...]:
+    """``"1,4:3,8"`` -> ``((1, None), (4, 3), (8, None))``: the K whose selection latency is measured
+    (each >= 1), each at S sampler steps when given as ``K:S``, else at the rule's default S."""
+    out = set()
+    for part in (v.strip() for v in text.split(",")):
+        if not part:
+            continue
+        k, _, steps = part.partition(":")
+        try:
+            pair = (int(k), int(steps) if steps else None)
+        except ValueError:
+            raise SettingError("candidates", f"expected comma-separated K or K:S whole numbers, got {text!r}") from None
+        if pair[0] < 1 or (pair[1] is not None and pair[1] < 1):
+            raise SettingError("candidates", f"expected K and S >= 1, got {part!r}")
+        out.add(pair)
+    if not out:
+        raise SettingError("candidates", f"expected comma-separated K or K:S whole numbers, got {text!r}")
+    return tuple(sorted(out, key=lambda p: (p[0], p[1] or 0)))
 
 
-def bench_select(candidates: tuple[int, ...] = (1, 4, 16), checkpoint: str | None = None, repeats: int = 5,
-                 threads: int | None = 2, device: str = "cpu", num_robots: int = 32, seed: int = 0) -> list[dict]:
+def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4, None), (16, None)),
+                 checkpoint: str | None = None, repeats: int = 5, threads: int | None = 2, device: str = "cpu",
+                 num_robots: int = 32, seed: int = 0) -> list[dict]:
     """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
-    (a random uniform-launch scenario) with K candidates per robot, for every K of ``candidates``
-    and every rule of :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1): the
+    (a random uniform-launch scenario) with K candidates per robot at S sampler steps, for every
+    (K, S) of ``candidates`` (S ``None``: the rule's default) and every rule of
+    :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1): the
     policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
     the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
-    untrained ``cpu`` preset; the default sampler."""
+    untrained ``cpu`` preset; the default sampler at each rule's default S
+    (:func:`madp.policies.madp.default_sampling_steps`)."""
     import torch
 
     from madp.models import MADP, madp_config
@@ -109,9 +121,10 @@ def bench_select(candidates: tuple[int, ...] = (1, 4, 16), checkpoint: str | Non
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     rows = []
     with _threads(threads):
-        for k in candidates:
+        for k, steps in candidates:
             for select in SELECTS[:1] if k == 1 else SELECTS[1:]:
-                policy = MADPPolicy(model, "decentralized", SamplingSettings(select=select, candidates=k), device=device)
+                sampling = SamplingSettings(select=select, candidates=k, sampling_steps=steps)
+                policy = MADPPolicy(model, "decentralized", sampling, device=device)
                 gen = noise_generator(seed)
                 times = _timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
                 rows.append({"candidates": k, "select": select, "num_robots": num_robots, "sampler": policy.sampler,
@@ -206,7 +219,7 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
                     grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
                     repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
                     progress: bool = True, device: str = "cpu", sweep: bool = True,
-                    candidates: tuple[int, ...] = (), robot: bool = False) -> dict:
+                    candidates: tuple[tuple[int, int | None], ...] = (), robot: bool = False) -> dict:
     """The whole ``madp bench infer`` (module docstring) on ``device`` (the sweep's rollouts and the
     latency). Without a checkpoint (none given and none shipped) the sweep is skipped and latency is
     reported for DDIM-50 only; with ``sweep=False`` the sweep is skipped and latency is reported for
@@ -281,10 +294,10 @@ def format_table(r: dict) -> list[str]:
     for i, x in enumerate(r.get("selection") or []):
         if i == 0:
             model = "untrained cpu preset" if x["checkpoint"] is None else x["checkpoint"]
-            lines.append(f"{'K':>4}  {'select':<8}{'latency ms':>12}   (one decentralized MADP control step, observations "
-                         f"and choice included: {x['sampler']} S = {x['num_steps']}, N = {x['num_robots']}, "
+            lines.append(f"{'K':>4}{'S':>3}  {'select':<12}{'latency ms':>12}   (one decentralized MADP control step, "
+                         f"observations and choice included: {x['sampler']} at S steps, N = {x['num_robots']}, "
                          f"{x['threads']} threads, {model})")
-        lines.append(f"{x['candidates']:>4}  {x['select']:<8}{1e3 * x['latency_s']:>12.1f}")
+        lines.append(f"{x['candidates']:>4}{x['num_steps']:>3}  {x['select']:<12}{1e3 * x['latency_s']:>12.1f}")
     if r.get("robot_runtime"):
         from madp.export.bench import format_robot_runtime
 

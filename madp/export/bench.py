@@ -3,7 +3,7 @@ exported files (:class:`madp.robot.RobotRuntime`, onnxruntime on one thread), be
 policy's control step of the whole swarm on one thread, per robot.
 
 The swarm: N robots of a random uniform-launch scenario at its first step, the evaluation default's
-sampling (DPM-Solver++(2M), S = 3, frame d4, ``explore`` among K = 4). A robot's step is what it runs
+sampling (:class:`madp.policies.SamplingSettings`' defaults). A robot's step is what it runs
 per control step once it has sensed: its token (perception graph, neighbourhood offset) and its act
 (inbox checks, encoder once, denoiser S times on K samples, the choice); its observation and map
 views are computed before timing (as the simulator gives them). The PyTorch figure is
@@ -23,9 +23,10 @@ import numpy as np
 __all__ = ["bench_robot_runtime", "format_robot_runtime"]
 
 
-def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, candidates: int = 4, repeats: int = 5,
+def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, candidates: int | None = None, repeats: int = 5,
                         seed: int = 0) -> dict:
-    """Latency per robot per control step of the runtime (one thread) and of PyTorch (one thread)."""
+    """Latency per robot per control step of the runtime (one thread) and of PyTorch (one thread), at the
+    evaluation default's sampling (``candidates``: another K)."""
     import torch
 
     from madp.models.bench import _threads
@@ -37,7 +38,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     from .onnx import export_policy
 
     path = checkpoint or str(shipped_checkpoint("madp"))
-    sampling = SamplingSettings(candidates=candidates)
+    sampling = SamplingSettings() if candidates is None else SamplingSettings(candidates=candidates)
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     with tempfile.TemporaryDirectory() as tmp:
         export_policy(path, Path(tmp), sampling)
@@ -68,7 +69,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
             t0 = time.perf_counter()
             policy.act_batch([env], [gen])
             swarm.append(time.perf_counter() - t0)
-    return {"checkpoint": path, "num_robots": num_robots, "candidates": candidates, "sampler": sampling.sampler,
+    return {"checkpoint": path, "num_robots": num_robots, "candidates": sampling.candidates, "sampler": sampling.sampler,
             "num_steps": sampling.sampling_steps, "select": sampling.select, "frame": sampling.frame, "threads": 1,
             "mean_neighbourhood": float(nbr.sum(1).mean() + 1), "onnxruntime_per_robot_s": float(np.median(robot)),
             "torch_swarm_s": float(np.median(swarm)), "torch_per_robot_s": float(np.median(swarm)) / num_robots,

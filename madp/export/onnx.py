@@ -149,7 +149,7 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
                   params: SimParams | None = None) -> dict:
     """Export the MADP checkpoint ``policy`` to ``out_dir`` (created): the three graphs and
     ``runtime.json`` (module docstring). ``sampling``: the loop the JSON describes (default: the
-    evaluation default, DPM-Solver++(2M), S = 3, frame d4, explore among K = 4); ``params``: the
+    evaluation default, ``SamplingSettings()``); ``params``: the
     simulator constants of its motion (default :class:`SimParams`). Returns the JSON written.
 
     One-line errors for a file that is not a MADP checkpoint and for settings the runtime does not

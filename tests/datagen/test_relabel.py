@@ -9,7 +9,7 @@ import pytest
 
 from madp.data_schema import Manifest, iter_shard
 from madp.datagen.plan import scenario_seed
-from madp.policies import shipped_checkpoint
+from madp.policies import SamplingSettings, shipped_checkpoint
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario, SimParams
 from tests.test_reliability_errors import assert_one_line, cli
 
@@ -147,6 +147,14 @@ def test_select_drives_as_the_evaluation_default_and_is_recorded(tmp_path):
     path, seed = shipped_checkpoint("madp"), 11
     settings = learner_settings(path, select=DEFAULT_SELECT)
     assert settings["select"] == DEFAULT_SELECT and "select" not in learner_settings(path)
+    default_sampling = make_controller("madp", str(path)).sampling
+    assert (settings["candidates"], settings["sampling_steps"]) == (default_sampling.candidates,
+                                                                     default_sampling.sampling_steps)
+    # a plan that names the rule without K and S was made with K = 4 at S = 3, and still drives so
+    old_plan = {k: v for k, v in settings.items() if k not in ("candidates", "sampling_steps")}
+    old = make_controller("madp", str(path), seed=seed, sampling=SamplingSettings.of(candidates=4, sampling_steps=3))
+    env_old = [CoverageEnv(Scenario.random(5, PARAMS)) for _ in range(2)]
+    np.testing.assert_array_equal(learner_driver(old_plan, seed)(env_old[0], None), old(env_old[1]))
     drive, default = learner_driver(settings, seed), make_controller("madp", str(path), seed=seed)
     envs = [CoverageEnv(Scenario.random(5, PARAMS)) for _ in range(2)]
     for _ in range(4):

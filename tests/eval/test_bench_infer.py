@@ -84,18 +84,22 @@ def test_eval_on_a_cuda_device_this_machine_lacks_is_one_line(tmp_path):
 
 
 def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
-    """``--candidates 1,2``: K = 1 without selection, then every rule at K = 2 (structure, not speed)."""
+    """``--candidates 1,2,2:3``: K = 1 without selection, then every rule at K = 2 at its default S
+    and at S = 3 (structure, not speed)."""
     from madp.eval.bench import bench_select, parse_candidates
 
-    assert parse_candidates("16,1,4") == (1, 4, 16)
-    for bad in ("0,4", "a", ""):
+    assert parse_candidates("16,1,4") == ((1, None), (4, None), (16, None))
+    assert parse_candidates("8,4:3") == ((4, 3), (8, None))
+    for bad in ("0,4", "a", "", "4:0", "4:x"):
         with pytest.raises(SettingError, match="^candidates: "):
             parse_candidates(bad)
     assert_one_line(*cli("bench", "infer", "--no-sweep", "--candidates", "1,x", "--presets", "cpu"), "--candidates")
-    rows = bench_select((1, 2), repeats=1, threads=1, num_robots=8)
-    assert [(r["candidates"], r["select"]) for r in rows] == [(1, "none"), (2, "oracle"), (2, "cell"), (2, "mppi"),
-                                                                (2, "medoid"), (2, "explore"), (2, "oracle_cell")]
+    rows = bench_select(parse_candidates("1,2,2:3"), repeats=1, threads=1, num_robots=8)
+    rules = ["oracle", "cell", "mppi", "medoid", "explore", "oracle_cell"]
+    assert [(r["candidates"], r["num_steps"], r["select"]) for r in rows] == [
+        (1, 3, "none"), *[(2, 2, x) for x in rules], *[(2, 3, x) for x in rules]]  # none's S is 3, a rule's 2
     assert all(r["latency_s"] > 0 and r["num_robots"] == 8 for r in rows)
     lines = format_table({"sweep": None, "swept": False, "paper_latency_s": 0.36, "device": "cpu", "latency": [],
                           "selection": rows})
-    assert sum(x.strip().startswith("2  ") for x in lines) == 6 and any("K" in x and "select" in x for x in lines)
+    assert sum(x.strip().startswith("2  2  ") for x in lines) == 6 and sum(x.strip().startswith("2  3  ") for x in lines) == 6
+    assert any("K" in x and "select" in x for x in lines)

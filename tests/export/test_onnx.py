@@ -58,8 +58,8 @@ def test_export_command_on_the_shipped_policy(tmp_path):
     assert {p.name for p in tmp_path.iterdir()} == {*GRAPHS.values(), "runtime.json"}
     spec = json.loads((tmp_path / "runtime.json").read_text())
     assert spec["source"]["sha256"] == sha256_file(ship)
-    assert spec["sampler"]["name"] == "dpm++" and spec["sampler"]["steps"] == 3 == len(spec["sampler"]["coefficients"])
-    assert spec["selection"] == {"frame": "d4", "rule": "explore", "candidates": 4, "grid_m": 4}
+    assert spec["sampler"]["name"] == "dpm++" and spec["sampler"]["steps"] == 2 == len(spec["sampler"]["coefficients"])
+    assert spec["selection"] == {"frame": "d4", "rule": "explore", "candidates": 8, "grid_m": 4}
     assert spec["radii"]["comm_radius_m"] == 256.0 and len(spec["action_stats"]["std"]) == 2
     # the real policy's graphs against PyTorch too, on a neighbourhood of 7 tokens
     from madp.policies import load
@@ -81,3 +81,16 @@ def test_export_refuses_what_a_robot_cannot_run(tmp_path):
     assert r.returncode == 2 and "oracle" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = madp("export", str(shipped_checkpoint("lpac")), "--out", str(tmp_path))
     assert r.returncode == 2 and "lpac" in r.stderr
+
+
+def test_robot_runtime_bench_runs_the_evaluation_default():
+    """``madp bench infer``'s robot rows: the runtime at the evaluation default's sampling, which
+    its figures and printed line name (structure, not speed)."""
+    from madp.export.bench import bench_robot_runtime, format_robot_runtime
+    from madp.policies import SamplingSettings
+
+    r = bench_robot_runtime(num_robots=6, repeats=1)
+    d = SamplingSettings()
+    assert (r["candidates"], r["num_steps"], r["select"], r["frame"]) == (d.candidates, d.sampling_steps, d.select, d.frame)
+    assert r["onnxruntime_per_robot_s"] > 0 and r["torch_swarm_s"] > 0
+    assert f"among K = {d.candidates}," in format_robot_runtime(r)[0]
