@@ -31,7 +31,7 @@ app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 # MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
 SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; docs/concepts/sampling.md): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
-CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 8, or 1 with --select none; K > 1 needs a rule other than none).")
+CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
 @app.command()
@@ -230,7 +230,7 @@ def eval_cmd(
     lpac: Optional[Path] = typer.Option(None, help="LPAC-K3 policy.safetensors (default: the shipped one)."),
     madp: Optional[Path] = typer.Option(None, help="MADP policy.safetensors (default: the shipped one)."),
     sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (docs/reports/2026-12-01-sampler-steps.md)."),
-    sampling_steps: Optional[int] = typer.Option(None, min=1, help="Sampler steps S for MADP; default: the measured best (DPM-Solver++: 2 when robots choose among samples, 3 with --select none)."),
+    sampling_steps: Optional[int] = typer.Option(None, min=1, help="Sampler steps S for MADP; default: the measured best."),
     ddim_steps: Optional[int] = typer.Option(None, min=1, hidden=True, help="Old spelling of --sampler ddim --sampling-steps S."),
     eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),

@@ -104,7 +104,7 @@ def bench_infer_cmd(
     device: str = typer.Option("cpu", help="Where MADP runs, in the sweep and the latency: cpu | cuda | cuda:I | auto (cuda when there is one)."),
     presets: str = typer.Option("cpu,paper", help="Comma-separated presets whose latency is measured."),
     sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="--no-sweep: no closed-loop sweep; the latency of every --grid setting instead."),
-    candidates: Optional[str] = typer.Option(None, help="Also the latency of a whole decentralized control step with K samples per robot and each --select rule of madp eval, for these K (e.g. 1,4,16) at each rule's default S, or K:S at S sampler steps (e.g. 4:3,8)."),
+    candidates: Optional[str] = typer.Option(None, help="Also the latency of a whole decentralized control step with K samples per robot and each --select rule of madp eval, for these K (e.g. 1,4,16) at the default S, or K:S at S sampler steps (e.g. 4,8:2)."),
     robot: Optional[bool] = typer.Option(None, "--robot/--no-robot", help="Also one robot's control step through madp export's files (onnxruntime, 1 thread, the evaluation default's sampling) beside PyTorch's per robot; default: when onnxruntime imports (madp[onnx])."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:

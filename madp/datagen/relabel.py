@@ -45,9 +45,10 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
     if select != "none" and meta["kind"] != "madp":
         raise SettingError("select", f"only MADP chooses among samples; {policy} is {meta['kind']}")
     if select != "none":  # the rule's K and S as they are today: a later default does not change the data
-        from madp.policies.madp import default_sampling_steps
+        from madp.policies.madp import SamplingSettings
 
-        chosen = {"select": select, "candidates": default_candidates(select), "sampling_steps": default_sampling_steps(select)}
+        sampling = SamplingSettings.of(select=select)
+        chosen = {"select": select, "candidates": sampling.candidates, "sampling_steps": sampling.sampling_steps}
     return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
             **(chosen if select != "none" else {}),
             "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}

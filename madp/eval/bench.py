@@ -15,7 +15,7 @@
 4. The **best** setting: the (sampler, S\\*) of lowest cpu-preset decentralized latency.
 5. ``cost_vs_steps.png``: mean cost ± SE against S per sampler, with DDIM-50's band.
 6. With ``candidates`` (``--candidates 1,4,16``; ``K:S`` at S sampler steps): the latency of one whole decentralized MADP control
-   step (cpu preset, the default sampler at each rule's default S) with K samples per robot and each rule that chooses among
+   step (cpu preset, the default sampler at its default S, or S given) with K samples per robot and each rule that chooses among
    them (:mod:`madp.policies.select`): :func:`bench_select`.
 7. With ``robot`` (``--robot``, the default where onnxruntime imports): one robot's control step through
    the files of ``madp export`` on one thread, at the evaluation default's sampling, beside PyTorch's per robot
@@ -79,7 +79,7 @@ def parse_grid(text: str) -> dict[str, tuple[int, ...]]:
 
 def parse_candidates(text: str) -> tuple[tuple[int, int | None], ...]:
     """``"1,4:3,8"`` -> ``((1, None), (4, 3), (8, None))``: the K whose selection latency is measured
-    (each >= 1), each at S sampler steps when given as ``K:S``, else at the rule's default S."""
+    (each >= 1), each at S sampler steps when given as ``K:S``, else at the default S."""
     out = set()
     for part in (v.strip() for v in text.split(",")):
         if not part:
@@ -102,12 +102,11 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
                  num_robots: int = 32, seed: int = 0) -> list[dict]:
     """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
     (a random uniform-launch scenario) with K candidates per robot at S sampler steps, for every
-    (K, S) of ``candidates`` (S ``None``: the rule's default) and every rule of
+    (K, S) of ``candidates`` (S ``None``: the default S) and every rule of
     :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1): the
     policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
     the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
-    untrained ``cpu`` preset; the default sampler at each rule's default S
-    (:func:`madp.policies.madp.default_sampling_steps`)."""
+    untrained ``cpu`` preset; the default sampler."""
     import torch
 
     from madp.models import MADP, madp_config
@@ -123,7 +122,7 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     with _threads(threads):
         for k, steps in candidates:
             for select in SELECTS[:1] if k == 1 else SELECTS[1:]:
-                sampling = SamplingSettings(select=select, candidates=k, sampling_steps=steps)
+                sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
                 policy = MADPPolicy(model, "decentralized", sampling, device=device)
                 gen = noise_generator(seed)
                 times = _timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)

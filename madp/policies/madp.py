@@ -41,18 +41,6 @@ def noise_generator(seed: int) -> torch.Generator:
     return g
 
 
-#: S of the default sampler when robots choose among their samples: K = 8 candidates at S = 2 cost what
-#: K = 4 at S = 3 did, and choose better (docs/reports/2026-12-04-candidates.md).
-CHOICE_SAMPLING_STEPS = 2
-
-
-def default_sampling_steps(select: str, sampler: str = DEFAULT_SAMPLER) -> int:
-    """S when none is given: :data:`CHOICE_SAMPLING_STEPS` for the default sampler with a rule that
-    chooses among several samples, else the sampler's measured S (``DEFAULT_SAMPLING_STEPS``: one
-    sample per robot, docs/reports/2026-12-01-sampler-steps.md)."""
-    return CHOICE_SAMPLING_STEPS if select != "none" and sampler == DEFAULT_SAMPLER else DEFAULT_SAMPLING_STEPS
-
-
 #: The frames MADP's model may see the world in (:class:`SamplingSettings`).
 FRAMES = ("world", "d4")
 
@@ -73,14 +61,13 @@ class SamplingSettings:
     ``candidates`` K and ``select``: every robot draws K candidate actions in the same batched call
     and keeps one by rule ``select`` (:mod:`madp.policies.select`): ``none`` (K = 1: one sample per robot),
     ``oracle`` (the joint sample of lowest true J after the step: an upper bound that reads the whole
-    world, not a controller robots could run), ``cell``, ``mppi``, ``explore`` (the default, K = 8) or ``medoid``
+    world, not a controller robots could run), ``cell``, ``mppi``, ``explore`` (the default, K = 4) or ``medoid``
     (each robot on what it knows) and ``oracle_cell`` (``cell`` on the true map: an upper bound).
 
-    ``sampling_steps`` left ``None`` is :func:`default_sampling_steps` of the rule and the sampler.
     Checked on construction; the defaults are the measured best."""
 
     sampler: str = DEFAULT_SAMPLER
-    sampling_steps: int | None = None
+    sampling_steps: int = DEFAULT_SAMPLING_STEPS
     eta: float = 0.0
     fixed_noise: bool = False
     frame: str = "d4"
@@ -88,8 +75,6 @@ class SamplingSettings:
     candidates: int = default_candidates(DEFAULT_SELECT)
 
     def __post_init__(self) -> None:
-        if self.sampling_steps is None:
-            object.__setattr__(self, "sampling_steps", default_sampling_steps(self.select, self.sampler))
         check_sampler(self.sampler, self.sampling_steps, self.eta)
         if self.frame not in FRAMES:
             raise SettingError("frame", f"expected one of {', '.join(FRAMES)}, got {self.frame!r}")
@@ -99,11 +84,10 @@ class SamplingSettings:
     def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
            fixed_noise: bool = False, frame: str = "d4", select: str | None = None, candidates: int | None = None
            ) -> "SamplingSettings":
-        """The settings with ``None`` standing for the default sampler and selection rule, for the
-        rule's default K (:func:`madp.policies.select.default_candidates`) and for the default S of
-        the rule and sampler (:func:`default_sampling_steps`)."""
+        """The settings with ``None`` standing for the default sampler, S and selection rule, and for
+        the rule's default K (:func:`madp.policies.select.default_candidates`)."""
         select = DEFAULT_SELECT if select is None else select
-        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or None, eta, fixed_noise, frame,
+        return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,
                    select, default_candidates(select) if candidates is None else candidates)
 
     def as_dict(self) -> dict:

@@ -55,7 +55,7 @@ SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
-DEFAULT_CANDIDATES = 8
+DEFAULT_CANDIDATES = 4
 
 
 def default_candidates(select: str) -> int:

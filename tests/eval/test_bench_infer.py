@@ -84,8 +84,8 @@ def test_eval_on_a_cuda_device_this_machine_lacks_is_one_line(tmp_path):
 
 
 def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
-    """``--candidates 1,2,2:3``: K = 1 without selection, then every rule at K = 2 at its default S
-    and at S = 3 (structure, not speed)."""
+    """``--candidates 1,2,2:2``: K = 1 without selection, then every rule at K = 2 at the default S
+    (3) and at S = 2 (structure, not speed)."""
     from madp.eval.bench import bench_select, parse_candidates
 
     assert parse_candidates("16,1,4") == ((1, None), (4, None), (16, None))
@@ -94,10 +94,10 @@ def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
         with pytest.raises(SettingError, match="^candidates: "):
             parse_candidates(bad)
     assert_one_line(*cli("bench", "infer", "--no-sweep", "--candidates", "1,x", "--presets", "cpu"), "--candidates")
-    rows = bench_select(parse_candidates("1,2,2:3"), repeats=1, threads=1, num_robots=8)
+    rows = bench_select(parse_candidates("1,2,2:2"), repeats=1, threads=1, num_robots=8)
     rules = ["oracle", "cell", "mppi", "medoid", "explore", "oracle_cell"]
     assert [(r["candidates"], r["num_steps"], r["select"]) for r in rows] == [
-        (1, 3, "none"), *[(2, 2, x) for x in rules], *[(2, 3, x) for x in rules]]  # none's S is 3, a rule's 2
+        (1, 3, "none"), *[(2, 3, x) for x in rules], *[(2, 2, x) for x in rules]]
     assert all(r["latency_s"] > 0 and r["num_robots"] == 8 for r in rows)
     lines = format_table({"sweep": None, "swept": False, "paper_latency_s": 0.36, "device": "cpu", "latency": [],
                           "selection": rows})

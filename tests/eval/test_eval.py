@@ -88,7 +88,7 @@ def test_eval_end_to_end_resume_and_identical_envs(tmp_path, checkpoints):
     assert (results[~results.controller.str.startswith("madp")].sampler == "").all()
     summary = json.loads((d / "summary.json").read_text())
     assert summary["sampling"]["madp"] == {"sampler": cfg.sampling.sampler, "sampling_steps": 3, "frame": "d4",
-                                           "select": "explore", "candidates": 8}  # the evaluation default
+                                           "select": "explore", "candidates": 4}  # the evaluation default
     assert "S = 3" in (d / "summary.md").read_text()
     from mcap.reader import make_reader
 

@@ -58,8 +58,8 @@ def test_export_command_on_the_shipped_policy(tmp_path):
     assert {p.name for p in tmp_path.iterdir()} == {*GRAPHS.values(), "runtime.json"}
     spec = json.loads((tmp_path / "runtime.json").read_text())
     assert spec["source"]["sha256"] == sha256_file(ship)
-    assert spec["sampler"]["name"] == "dpm++" and spec["sampler"]["steps"] == 2 == len(spec["sampler"]["coefficients"])
-    assert spec["selection"] == {"frame": "d4", "rule": "explore", "candidates": 8, "grid_m": 4}
+    assert spec["sampler"]["name"] == "dpm++" and spec["sampler"]["steps"] == 3 == len(spec["sampler"]["coefficients"])
+    assert spec["selection"] == {"frame": "d4", "rule": "explore", "candidates": 4, "grid_m": 4}
     assert spec["radii"]["comm_radius_m"] == 256.0 and len(spec["action_stats"]["std"]) == 2
     # the real policy's graphs against PyTorch too, on a neighbourhood of 7 tokens
     from madp.policies import load

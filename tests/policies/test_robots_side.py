@@ -29,7 +29,7 @@ def _act(name: str, ctrl, envs: list[CoverageEnv], generators) -> np.ndarray:
 
 @pytest.mark.parametrize("name", CONTROLLERS)
 def test_an_ideal_network_gives_the_true_state_actions(name):
-    """DCVT and LPAC-K3 bit for bit; MADP (the evaluation default: K = 8 at S = 2, explore, d4 frame) to 1e-6 m/s,
+    """DCVT and LPAC-K3 bit for bit; MADP (the evaluation default: K = 4, explore, d4 frame) to 1e-6 m/s,
     with the same noise, over a batch of two environments and 6 steps."""
     ctrl = make_controller(name)
     seeds = (11, 12)

@@ -29,7 +29,7 @@ def tiny_dir(tmp_path_factory):
 @pytest.mark.parametrize("frame", ["d4", "world"])
 def test_control_steps_match_the_pytorch_policy(frame):
     """Every robot's action of the shipped policy through the exported files, with the same noise,
-    within 1e-4 m/s of the PyTorch policy's (the evaluation default: explore among K = 8 at S = 2), over 3 steps of a packed swarm."""
+    within 1e-4 m/s of the PyTorch policy's (explore among K = 4), over 3 steps of a packed swarm."""
     ship = shipped_checkpoint("madp")
     sampling = SamplingSettings(frame=frame)
     sc = Scenario.random(3, SimParams(num_robots=10, num_features=8), launch=(300.0, 300.0, 650.0, 650.0))
