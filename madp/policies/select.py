@@ -51,7 +51,7 @@ from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "explore_joint")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
@@ -98,16 +98,6 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) ->
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if select == "medoid":
         return np.take_along_axis(per_robot, medoid_index(per_robot)[:, None, None], 1)[:, 0]
-    if select == "explore_joint":  # experiment: neighbours at their own copy-k moves, not where they are
-        views = explore_prior(env, local_views(env))
-        nbr, _ = env.neighbour_view()
-        m = views.neighbours_m.shape[1]
-        order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]
-        moved, _ = move(env.start_m, env.offset_m, candidates_mps, env.params)  # [K, N, 2]
-        nbr_k = np.ascontiguousarray(moved[:, order].transpose(1, 0, 2, 3))  # [N, K, M, 2]
-        y, _ = move(views.start_m[:, None], views.offset_m[:, None], per_robot, env.params)
-        costs = _joint_costs(np.ascontiguousarray(y), views.weights, views.origin_m, nbr_k, views.valid, GRID_M)
-        return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
     views = local_views(env, true_map=select == "oracle_cell")
     if select == "explore":
         views = explore_prior(env, views)
@@ -117,27 +107,3 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) ->
     if select == "mppi":
         return np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)
     raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
-
-
-@numba.njit(cache=True, nogil=True)
-def _joint_costs(y, weights, origin, nbr, valid, b):  # pragma: no cover (compiled)
-    r_n, k_n, g = y.shape[0], y.shape[1], weights.shape[1]
-    out = np.zeros((r_n, k_n))
-    for r in range(r_n):
-        for a in range(g):
-            qx = origin[r, 0] + b * a + b / 2
-            for c in range(g):
-                w = weights[r, a, c]
-                if w == 0.0:
-                    continue
-                qy = origin[r, 1] + b * c + b / 2
-                for k in range(k_n):
-                    nearest = np.inf
-                    for m in range(nbr.shape[2]):
-                        if valid[r, m]:
-                            d = (qx - nbr[r, k, m, 0]) ** 2 + (qy - nbr[r, k, m, 1]) ** 2
-                            nearest = min(nearest, d)
-                    d = (qx - y[r, k, 0]) ** 2 + (qy - y[r, k, 1]) ** 2
-                    if d <= nearest:
-                        out[r, k] += w * d
-    return out
