@@ -44,13 +44,14 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
     _, meta = load_policy(policy)
     if select != "none" and meta["kind"] != "madp":
         raise SettingError("select", f"only MADP chooses among samples; {policy} is {meta['kind']}")
+    chosen = {}
     if select != "none":  # the rule's K and S as they are today: a later default does not change the data
         from madp.policies.madp import SamplingSettings
 
         sampling = SamplingSettings.of(select=select)
         chosen = {"select": select, "candidates": sampling.candidates, "sampling_steps": sampling.sampling_steps}
     return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
-            **(chosen if select != "none" else {}),
+            **chosen,
             "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}
 
 

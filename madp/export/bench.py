@@ -38,7 +38,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     from .onnx import export_policy
 
     path = checkpoint or str(shipped_checkpoint("madp"))
-    sampling = SamplingSettings() if candidates is None else SamplingSettings(candidates=candidates)
+    sampling = SamplingSettings.of(candidates=candidates)
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     with tempfile.TemporaryDirectory() as tmp:
         export_policy(path, Path(tmp), sampling)
