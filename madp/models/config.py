@@ -111,6 +111,10 @@ class MADPConfig:
     action_dim: int = 2
     time_embed_dim: int = 0
     """Width of the sinusoidal diffusion-step embedding; 0 means d_model."""
+    prediction: str = "epsilon"
+    """What the head predicts: ``"epsilon"`` (the DDPM noise, as the paper trains it) or ``"sample"``
+    (the clean normalised actions U_0; the samplers get the noise derived from it). A model distilled
+    into one sampler step (``madp train --distill``) predicts the sample."""
 
     def __post_init__(self) -> None:
         if self.d_model % self.n_heads:
@@ -119,6 +123,8 @@ class MADPConfig:
             raise ValueError("head_dim must be divisible by 4 (2-D RoPE uses D/4 frequencies per axis)")
         if self.cnn_norm not in ("batch", "none"):
             raise ValueError(f"cnn_norm must be 'batch' or 'none', got {self.cnn_norm!r}")
+        if self.prediction not in ("epsilon", "sample"):
+            raise ValueError(f"prediction must be 'epsilon' or 'sample', got {self.prediction!r}")
         if self.pos_token not in ("neighbourhood_offset", "none"):
             raise ValueError(f"pos_token must be 'neighbourhood_offset' or 'none', got {self.pos_token!r}")
         self.cnn_channels = tuple(int(c) for c in self.cnn_channels)

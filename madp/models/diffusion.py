@@ -81,6 +81,11 @@ class DDPMSchedule:
         ab = self._at(k, x_k)
         return (x_k - self._cast((1 - ab).sqrt(), x_k) * eps) / self._cast(ab.sqrt(), x_k)
 
+    def predict_eps(self, x_k: Tensor, x0: Tensor, k: int | Tensor) -> Tensor:
+        """The inverse of :meth:`predict_x0`: ``eps = (x_k - sqrt(abar_k) x0) / sqrt(1 - abar_k)`` (k >= 1)."""
+        ab = self._at(k, x_k)
+        return (x_k - self._cast(ab.sqrt(), x_k) * x0) / self._cast((1 - ab).sqrt(), x_k)
+
     # ----------------------------------------------------------------------------------- sampling
     def ddim_timesteps(self, num_steps: int) -> Tensor:
         """Subsequence ``[k_S, ..., k_1, k_0]`` (descending, long, length S + 1), ``k_i = round(i K / S)``,

@@ -40,6 +40,14 @@ from .transformer import RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTr
 __all__ = ["MADP", "TimestepEmbedding"]
 
 
+def _masked_mean(err: Tensor, valid: Tensor | None) -> Tensor:
+    """Mean of ``err [B, N, A]`` over the valid robots (``valid [B, N]``, None: all) and A."""
+    if valid is None:
+        return err.mean()
+    w = valid.unsqueeze(-1).to(err.dtype)
+    return (err * w).sum() / (w.sum() * err.shape[-1]).clamp_min(1)
+
+
 class TimestepEmbedding(nn.Module):
     """Diffusion step ``k [B]`` -> ``[B, d_model]``: sinusoidal features (transformer style, max
     period 10^4 in units of k) -> Linear -> LeakyReLU -> Linear."""
@@ -68,7 +76,8 @@ class MADP(ActionStatsMixin):
     Main entry points:
 
     * ``loss(obs, pos_m, actions_norm, valid=None, generator=None)`` (= ``forward``): DDPM
-      epsilon-MSE over valid robots.
+      epsilon-MSE over valid robots; ``one_step_loss``: the distillation loss of a model that
+      predicts the sample in one step (``config.prediction = "sample"``).
     * ``sample(obs, pos_m, num_steps, eta=0.0, sampler=...)``: *centralized-masked* sampling, the whole
       swarm in one pass with the attention mask (a fast approximation of decentralized execution:
       information can travel several hops through the layers).
@@ -156,12 +165,24 @@ class MADP(ActionStatsMixin):
         return self.encode_tokens(tokens, pos_m, mask), mask
 
     # ---------------------------------------------------------------------------------- denoising
-    def _denoise(self, x: Tensor, k: Tensor | int, memory_kv: list, rope, mask: Tensor) -> Tensor:
+    def _head_out(self, x: Tensor, k: Tensor | int, memory_kv: list, rope, mask: Tensor) -> Tensor:
+        """The head's raw output for ``x`` at step ``k``: the noise or the sample (``config.prediction``)."""
         b = x.shape[0]
         if not isinstance(k, Tensor) or k.dim() == 0:
             k = torch.full((b,), int(k), device=x.device, dtype=torch.long)
         h = self.action_in(x.to(self.dtype)) + self.time_embed(k).unsqueeze(1)
         return self.head(self.decoder(h, mask, rope, memory_kv))
+
+    def _as_eps(self, out: Tensor, x_k: Tensor, k: Tensor | int) -> Tensor:
+        """The head's output as the noise estimate: itself for an ``epsilon`` model; for a ``sample``
+        model ``eps = (x_k - sqrt(abar_k) U0_hat) / sqrt(1 - abar_k)`` (in float32, cast back), so every
+        sampler drives both kinds alike. ``k`` an int or ``[B]``; never 0."""
+        if self.config.prediction == "epsilon":
+            return out
+        return self.schedule.predict_eps(x_k.float(), out.float(), k).to(out.dtype)
+
+    def _denoise(self, x: Tensor, k: Tensor | int, memory_kv: list, rope, mask: Tensor) -> Tensor:
+        return self._as_eps(self._head_out(x, k, memory_kv, rope, mask), x, k)
 
     def denoise(self, noisy_actions: Tensor, k: Tensor | int, memory: Tensor, pos_m: Tensor, mask: Tensor,
                 valid: Tensor | None = None) -> Tensor:
@@ -191,16 +212,29 @@ class MADP(ActionStatsMixin):
                                 dtype=actions_norm.dtype)
         x_k = self.schedule.add_noise(actions_norm, noise, k)
         eps_hat = self.denoise(x_k, k, memory, pos_m, mask)
-        err = (eps_hat - noise).square()
-        if valid is None:
-            return err.mean()
-        w = valid.unsqueeze(-1).to(err.dtype)
-        return (err * w).sum() / (w.sum() * err.shape[-1]).clamp_min(1)
+        return _masked_mean((eps_hat - noise).square(), valid)
+
+    def one_step_loss(self, obs: Tensor, pos_m: Tensor, target_norm: Tensor, noise: Tensor,
+                      valid: Tensor | None = None) -> Tensor:
+        """Distillation loss of a ``sample`` model (``config.prediction``):
+        ``E ||U0_hat(U_K = noise, O; K) - target||^2``, the clean actions it predicts in one step from
+        the pure noise ``noise [B, N, 2]`` at the last diffusion step K, against ``target_norm [B, N, 2]``
+        (a teacher's sample from the same noise); mean over valid robots and action dims, in float32."""
+        if self.config.prediction != "sample":
+            raise ValueError("one_step_loss trains a model that predicts the sample (config.prediction = 'sample')")
+        memory, mask = self.encode(obs, pos_m, valid)
+        rope = self.rope(pos_m, self.dtype)
+        out = self._head_out(noise.to(self.dtype), self.schedule.num_train_steps, self.decoder.memory_kv(memory, rope),
+                             rope, mask)
+        return _masked_mean((out.float() - target_norm.float()).square(), valid)
 
     def forward(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None,
                 generator: torch.Generator | None = None, k: Tensor | None = None,
-                noise: Tensor | None = None) -> Tensor:
-        """Training loss (see :meth:`loss`); ``forward`` so that DDP/compile wrappers see it."""
+                noise: Tensor | None = None, one_step: bool = False) -> Tensor:
+        """Training loss (see :meth:`loss`; with ``one_step``, :meth:`one_step_loss` of ``actions_norm``
+        from ``noise``); ``forward`` so that DDP/compile wrappers see it."""
+        if one_step:
+            return self.one_step_loss(obs, pos_m, actions_norm, noise, valid)
         return self.loss(obs, pos_m, actions_norm, valid, generator, k, noise)
 
     # ----------------------------------------------------------------------------------- sampling
@@ -218,7 +252,7 @@ class MADP(ActionStatsMixin):
 
         def denoise(x_k: Tensor, i: int, k: int) -> Tensor:
             h = self.action_in(x_k.to(self.dtype)) + temb[i]
-            return self.head(self.decoder(h, bias, rope, memory_kv))
+            return self._as_eps(self.head(self.decoder(h, bias, rope, memory_kv)), x_k, k)
 
         return sample_loop(sampler, denoise, x, step_noise)
 

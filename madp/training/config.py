@@ -10,6 +10,12 @@ steps, and 20–60% of LPAC-K3's units were dead (docs/reports/2026-12-03-relabe
 batch 32, a higher learning rate (small models tolerate it and must learn within ~2 hours on two
 cores) with 200 warm-up steps and a cosine decay to 5% over the planned steps (epochs × steps per
 epoch), so a fixed time budget ends on small, low-noise updates; 30 epochs with patience 5. EMA decay 0.999 for MADP in both.
+
+``distill`` (MADP, either preset): instead of the DDPM loss, the student learns to do in one step what
+the teacher policy's DPM-Solver++(2M) does in ``distill_steps``: from the same pure noise U_K and
+state, its predicted sample is fitted to the teacher's (:meth:`madp.models.MADP.one_step_loss`). It
+starts from the teacher's weights (unless ``init`` names others) and keeps the teacher's action
+statistics; it samples with ``--sampling-steps 1``.
 """
 
 from __future__ import annotations
@@ -53,6 +59,8 @@ class TrainConfig:
     init: str = ""  # start from this policy.safetensors' weights (same model and preset), e.g. for DAgger rounds
     edge_weight: str = "binary"  # LPAC-K3's communication graph: binary (the library's) | gaussian
     compile: bool = False  # MADP through torch.compile (inductor): faster steps after a compile at the start
+    distill: str = ""  # MADP: distil this policy file's sampler into one step (a model that predicts the sample)
+    distill_steps: int = 3  # the teacher's DPM-Solver++(2M) steps S that the student learns to do in one
 
     def __post_init__(self) -> None:
         if self.model not in ("madp", "lpac"):
@@ -82,6 +90,10 @@ class TrainConfig:
                                                f"got {list(self.data_weights)}")
         if self.compile and self.model != "madp":
             raise SettingError("compile", message="compile: only MADP compiles (torch_geometric's scatter in LPAC-K3 does not trace)")
+        if self.distill and self.model != "madp":
+            raise SettingError("distill", message="distill: only MADP distils its sampler (LPAC-K3 samples nothing)")
+        if not isinstance(self.distill_steps, int) or self.distill_steps < 1:
+            raise SettingError("distill_steps", f"expected a positive integer, got {self.distill_steps}")
         if self.edge_weight not in ("binary", "gaussian"):
             raise SettingError("edge_weight", f"expected binary or gaussian, got {self.edge_weight!r}")
         if not (math.isfinite(self.stop_after_minutes) and self.stop_after_minutes >= 0):

@@ -40,6 +40,7 @@ from madp.io.atomic import named, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.workers import die_with_parent
 from madp.models import EMA, MADP, lpac_config, madp_config
+from madp.models.samplers import DEFAULT_SAMPLER
 
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
@@ -69,8 +70,8 @@ def setup_distributed() -> tuple[int, int, torch.device]:
 
 
 def build_model(cfg: TrainConfig, num_robots: int) -> torch.nn.Module:
-    if cfg.model == "madp":
-        return MADP(madp_config(cfg.preset))
+    if cfg.model == "madp":  # a distilled student predicts the sample (madp.training.config)
+        return MADP(madp_config(cfg.preset, **({"prediction": "sample"} if cfg.distill else {})))
     from madp.models.lpac import LPAC  # torch_geometric: seconds to import, so only for LPAC-K3
 
     return LPAC(lpac_config(cfg.preset, edge_weight=cfg.edge_weight))
@@ -104,14 +105,20 @@ def batch_device(model: torch.nn.Module) -> torch.device:
     return next(model.parameters()).device
 
 
-def batch_loss(model, raw, batch: dict, cfg: TrainConfig, draws: tuple | None, device) -> torch.Tensor:
-    """The loss of one micro-batch; ``draws`` = :func:`step_noise` (MADP) or None (LPAC-K3)."""
+def batch_loss(model, raw, batch: dict, cfg: TrainConfig, draws: tuple | None, device, teacher=None) -> torch.Tensor:
+    """The loss of one micro-batch; ``draws`` = :func:`step_noise` (MADP) or None (LPAC-K3). With a
+    ``teacher`` (distillation) the target is its sample from the draw's noise, in float32."""
     obs = batch["obs"].to(device, non_blocking=True)
     pos = batch["pos_m"].to(device, non_blocking=True)
     act = raw.normalize_actions(batch["actions"].to(device, non_blocking=True))
     valid = batch["valid"].to(device) if "valid" in batch else None  # padding of mixed swarm sizes
+    if teacher is not None:
+        noise = draws[1][:, :obs.shape[1]]
+        target = teacher.sample(obs, pos, cfg.distill_steps, valid=valid, noise=noise)  # no_grad, float32
     autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else nullcontext()
     with autocast:
+        if teacher is not None:
+            return model(obs, pos, target, valid, None, None, noise, one_step=True)
         if cfg.model == "madp":
             k, noise = draws
             # forward = DDPM loss (through DDP if wrapped); noise drawn for the largest N, sliced to this batch's
@@ -151,10 +158,15 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.raw = build_model(cfg, self.manifest.num_robots).to(self.device)
         stats = self.manifest.action_stats
+        self.teacher, self.distill_meta = (self._load_teacher(Path(cfg.distill)) if cfg.distill else (None, {}))
         if cfg.init:  # on resume the checkpoint holds the weights; the record of the start stays
             self._init_from(Path(cfg.init), load_weights=not resume)
+        elif self.teacher is not None and not resume:  # a student starts as its teacher
+            self.raw.load_state_dict(self.teacher.state_dict())
         self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
                                   torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
+        if self.teacher is not None:  # the student's samples are the teacher's, in its normalisation
+            self.raw.set_action_stats(self.teacher.action_mean, self.teacher.action_std)
         self.opt = make_optimizer(cfg, self.raw.parameters())
         self.ema = EMA(self.raw, cfg.ema_decay) if cfg.model == "madp" else None
         self.model = self.raw
@@ -207,16 +219,33 @@ class Trainer:
             self.raw.load_state_dict(model.state_dict())
         self.init_meta = {"path": str(path), "sha256": sha256_file(path), "step": meta.get("step")}
 
+    def _load_teacher(self, path: Path) -> tuple[torch.nn.Module, dict]:
+        """The frozen teacher of a distillation: an MADP policy of this preset that predicts the noise."""
+        from madp.policies.checkpoint import load_policy
+
+        model, meta = load_policy(path, self.device)
+        want = {**self.raw.config.to_dict(), "prediction": "epsilon"}
+        if meta["kind"] != "madp" or meta["config"] != want:
+            raise InputError(f"{path}: distill needs an MADP checkpoint of the {self.cfg.preset} preset that predicts "
+                             f"the noise (it is a {meta['kind']} with another config)")
+        model.requires_grad_(False)
+        return model.eval(), {"path": str(path), "sha256": sha256_file(path), "sampler": DEFAULT_SAMPLER,
+                              "sampling_steps": self.cfg.distill_steps}
+
     # ---- bookkeeping
     def _meta(self, val_loss: float | None) -> dict:
-        st = self.manifest.action_stats
-        return {"action_stats": st.to_dict(), "train_config": self.cfg.to_dict(), "step": self.step,
+        st = self.manifest.action_stats.to_dict()
+        if self.teacher is not None:
+            st = {"mean": self.teacher.action_mean.tolist(), "std": self.teacher.action_std.tolist(),
+                  "source": "the teacher"}
+        return {"action_stats": st, "train_config": self.cfg.to_dict(), "step": self.step,
                 "epoch": self.epoch, "val_loss": val_loss, "dataset": {
                     "root": str(self.cfg.data), "num_samples": self.manifest.num_samples,
                     "created_by": self.manifest.created_by, "params": self.manifest.params,
                     "more": [{"root": d, "weight": w, "num_samples": m.num_samples, "created_by": m.created_by}
                              for d, w, m in zip(self.cfg.more_data, self.cfg.weights[1:], self.manifests[1:])]},
-                "code_version": self.manifest.code_version, **({"init": self.init_meta} if self.init_meta else {})}
+                "code_version": self.manifest.code_version, **({"init": self.init_meta} if self.init_meta else {}),
+                **({"distill": self.distill_meta} if self.distill_meta else {})}
 
     def _write_config(self) -> None:
         d = {"train": self.cfg.to_dict(), "model": self.raw.config.to_dict(),
@@ -334,7 +363,7 @@ class Trainer:
                     k, noise = step_noise(self.raw, g, batch, 1)
                     draws = (k[0], noise[0])
                 b = batch["obs"].shape[0]
-                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, draws, self.device)) * b
+                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, draws, self.device, self.teacher)) * b
                 n += b
         self.raw.train()
         return total / max(n, 1)
@@ -420,7 +449,7 @@ class Trainer:
                 last = micro == accum - 1
                 sync = self.model.no_sync() if self.ddp and not last else nullcontext()
                 with sync:  # DDP averages the gradients over ranks at the step's last micro-batch
-                    loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device)
+                    loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device, self.teacher)
                     (loss / accum).backward()
                 self.batches_done += 1
                 seen += batch["obs"].shape[0] * self.world

@@ -47,6 +47,32 @@ def test_each_graph_matches_pytorch(tiny, tokens, batch):
         assert np.abs(got - ref).max() <= 1e-5, role
 
 
+def test_a_model_that_predicts_the_sample_exports_the_noise_it_implies(tmp_path):
+    """A distilled student (``prediction = "sample"``): its denoiser graph returns the noise derived
+    from the predicted sample, as PyTorch's ``denoise`` does, so the runtime's samplers drive it."""
+    from dataclasses import replace
+
+    from madp.export.onnx import export_graphs
+    from madp.models import MADP
+    from tests.robot.robot_testutils import tiny_madp_config
+
+    torch.manual_seed(1)
+    model = MADP(replace(tiny_madp_config(), prediction="sample")).eval()
+    export_graphs(model, tmp_path)
+    x = _inputs(model, 5, 3, torch.Generator().manual_seed(2))
+    module, inputs, _ = graph_modules(model)["denoiser"]
+    with torch.no_grad():
+        ref = module(*(x[n] for n in inputs)).numpy()
+    sess = ort.InferenceSession(str(tmp_path / GRAPHS["denoiser"]), providers=["CPUExecutionProvider"])
+    got = sess.run(None, {n: x[n].numpy() for n in inputs})[0]
+    assert np.abs(got - ref).max() <= 1e-4 * max(1.0, float(np.abs(ref).max()))
+    plain = MADP(tiny_madp_config()).eval()
+    plain.load_state_dict(model.state_dict())
+    with torch.no_grad():  # not the head's raw output: the noise it implies
+        raw = graph_modules(plain)["denoiser"][0](*(x[n] for n in inputs)).numpy()
+    assert np.abs(got - raw).max() > 1e-2
+
+
 def test_export_command_on_the_shipped_policy(tmp_path):
     from typer.testing import CliRunner
 
