@@ -88,6 +88,32 @@ def cities_dir() -> Path:
     return require_shared(CITIES, "city files")
 
 
+def run_script(script: Path, *args, timeout: float = 600):
+    """``bash script args…`` with one OpenMP thread: the finished process (stdout and stderr captured)."""
+    import subprocess
+
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    return subprocess.run(["bash", str(script), *map(str, args)], capture_output=True, text=True, env=env,
+                          timeout=timeout)
+
+
+def script_results(tmp_path_factory, script: Path, *args) -> Path:
+    """A fresh directory in which ``bash script OUT --work WORK args…`` has succeeded (else the ends
+    of its output are the failure); OUT and WORK are its ``out`` and ``work`` folders."""
+    root = tmp_path_factory.mktemp(script.stem)
+    r = run_script(script, root / "out", "--work", root / "work", *args)
+    assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
+    return root
+
+
+def returned_files(out: Path) -> list[str]:
+    """The sorted names of what a GPU-machine script left in ``out``, checked against what the
+    machine's return channel carries back: at most 8 plain files of at most 16 MiB each."""
+    files = sorted(p.name for p in out.iterdir())
+    assert len(files) <= 8 and all((out / f).is_file() and (out / f).stat().st_size <= 16 << 20 for f in files)
+    return files
+
+
 def tiny_dataset(tmp_path_factory, name: str, workers: int = 1) -> Path:
     """The small dataset the training, kill and error tests share: 160 samples of 4 robots and 4
     features on a 256 m world, seed 1, shards of 16 (the bytes do not depend on ``workers``)."""

@@ -1,8 +1,6 @@
 """scripts/gpu_distill.sh end to end on the CPU at tiny sizes (no GPU): what comes back fits the GPU
 machine's return channel, and the student is a one-step policy distilled from the shipped MADP."""
 
-import os
-import subprocess
 import sys
 import tarfile
 
@@ -11,33 +9,23 @@ import pytest
 from madp.data_schema.manifest import sha256_file
 from madp.policies import shipped_checkpoint
 from madp.training.checkpoint import load_policy
-from tests.conftest import REPO
+from tests.conftest import REPO, returned_files, run_script, script_results
 
 SCRIPT = REPO / "scripts" / "gpu_distill.sh"
 TINY = ["--python", sys.executable, "--minutes", "0.5", "--steps", "8", "--batch", "4", "--scale", "0.001",
         "--workers", "0"]
 
 
-def run(*args, timeout=600) -> subprocess.CompletedProcess:
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, env=env,
-                          timeout=timeout)
-
-
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    root = tmp_path_factory.mktemp("gpu-distill")
-    r = run(root / "out", "--work", root / "work", *TINY)
-    assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
-    return root
+    return script_results(tmp_path_factory, SCRIPT, *TINY)
 
 
 def test_the_student_comes_back_within_the_limits_and_names_its_teacher(results):
     out = results / "out"
-    files = sorted(p.name for p in out.iterdir())
+    files = returned_files(out)
     assert files == ["device.txt", "logs.tar.gz", "metrics.jsonl", "stages.tsv", "student.safetensors",
                      "train-config.json"]
-    assert all((out / f).stat().st_size <= 16 << 20 for f in files)
     stages = [line.split("\t") for line in (out / "stages.tsv").read_text().splitlines()]
     assert [s[0] for s in stages] == ["data-uniform", "data-narrow", "data-packed", "data-n128", "data-deployed", "train"]
     assert "--policy madp/checkpoints/madp-cpu.safetensors --select explore" in stages[4][2]
@@ -51,14 +39,14 @@ def test_the_student_comes_back_within_the_limits_and_names_its_teacher(results)
 
 
 def test_bad_flags_and_used_directories_stop_at_once(tmp_path):
-    r = run(tmp_path / "o", "--bogus", "1", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "o", "--bogus", "1", timeout=60)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "gpu_distill.sh: error: unknown flag --bogus (see the header of scripts/gpu_distill.sh)"]
-    r = run(tmp_path / "o", "--minutes", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "o", "--minutes", timeout=60)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == ["gpu_distill.sh: error: --minutes needs a value"]
     (tmp_path / "used").mkdir()
     (tmp_path / "used" / "f").write_text("x")
-    r = run(tmp_path / "used", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "used", timeout=60)
     assert r.returncode == 2 and "not empty" in r.stderr
-    r = run(tmp_path / "o2", "--work", tmp_path / "used", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "o2", "--work", tmp_path / "used", timeout=60)
     assert r.returncode == 2 and "did not write" in r.stderr and (tmp_path / "used" / "f").exists()

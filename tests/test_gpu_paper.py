@@ -3,7 +3,6 @@ the limits of the GPU machine's return channel and the float16 parts load into t
 
 import hashlib
 import json
-import os
 import subprocess
 import sys
 import tarfile
@@ -13,7 +12,7 @@ import pytest
 import torch
 
 from madp.training.checkpoint import load_policy
-from tests.conftest import REPO
+from tests.conftest import REPO, returned_files, run_script, script_results
 
 SCRIPT = REPO / "scripts" / "gpu_paper.sh"
 TINY = ["--python", sys.executable, "--device", "cpu", "--no-cuda-tests",
@@ -24,24 +23,14 @@ TINY = ["--python", sys.executable, "--device", "cpu", "--no-cuda-tests",
         "--bench-presets", "cpu", "--bench-grid", "dpm++:3", "--bench-repeats", "1", "--part-mib", "0.25"]
 
 
-def run(*args, timeout=600) -> subprocess.CompletedProcess:
-    env = dict(os.environ, OMP_NUM_THREADS="1")
-    return subprocess.run(["bash", str(SCRIPT), *map(str, args)], capture_output=True, text=True, env=env,
-                          timeout=timeout)
-
-
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    root = tmp_path_factory.mktemp("gpu-paper")
-    r = run(root / "results", "--work", root / "work", *TINY)
-    assert r.returncode == 0, (r.stdout[-3000:], r.stderr[-3000:])
-    return root
+    return script_results(tmp_path_factory, SCRIPT, *TINY)
 
 
 def test_results_fit_the_return_limits_and_record_the_run(results):
-    out = results / "results"
-    files = sorted(p.name for p in out.iterdir())
-    assert all((out / f).is_file() and (out / f).stat().st_size <= 16 << 20 for f in files) and len(files) <= 8
+    out = results / "out"
+    files = returned_files(out)
     parts = [f for f in files if f.startswith("policy-fp16.safetensors.0")]
     assert files == ["outputs.tar.gz", *parts, "policy-fp16.safetensors.parts.json", "provenance.json"]
     assert len(parts) >= 2  # --part-mib 0.25 splits the cpu preset's ~0.6 MB
@@ -71,7 +60,7 @@ def test_the_parts_load_as_the_trained_policy_in_float16(results):
     trained, meta = load_policy(results / "work" / "train" / "checkpoints" / "latest" / "policy.safetensors")
     params = {k for k, _ in trained.named_parameters()}
     for path in ("policy-fp16.safetensors.parts.json", "policy-fp16.safetensors.000"):
-        shipped, smeta = load_policy(results / "results" / path)
+        shipped, smeta = load_policy(results / "out" / path)
         assert smeta["step"] == meta["step"] == 2 and smeta["weights_dtype"] == "float16"
         for k, v in trained.state_dict().items():
             got = shipped.state_dict()[k]
@@ -80,20 +69,20 @@ def test_the_parts_load_as_the_trained_policy_in_float16(results):
 
 
 def test_bad_flags_and_a_used_results_dir_stop_at_once(tmp_path):
-    r = run(tmp_path / "r", "--bogus", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "r", "--bogus", timeout=60)
     assert r.returncode == 2 and r.stderr.strip().splitlines() == ["gpu_paper.sh: error: unknown flag --bogus (see the header of scripts/gpu_paper.sh)"]
-    r = run(tmp_path / "r", "--train-minutes", "x", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "r", "--train-minutes", "x", timeout=60)
     assert r.returncode == 2 and "--train-minutes" in r.stderr
     (tmp_path / "used").mkdir()
     (tmp_path / "used" / "f").write_text("x")
-    r = run(tmp_path / "used", timeout=60)
+    r = run_script(SCRIPT, tmp_path / "used", timeout=60)
     assert r.returncode == 2 and "not empty" in r.stderr
 
 
 def test_a_failing_stage_is_named_and_its_logs_come_back(tmp_path):
     args = [a if a != "--world-size 256 --num-robots 4 --num-features 4 --samples-per-shard 16" else "--num-robots 0"
             for a in TINY]
-    r = run(tmp_path / "res", "--work", tmp_path / "work", *args)
+    r = run_script(SCRIPT, tmp_path / "res", "--work", tmp_path / "work", *args)
     assert r.returncode == 1
     assert "stage 'datagen' failed" in r.stderr
     prov = json.loads((tmp_path / "res" / "provenance.json").read_text())
