@@ -29,7 +29,7 @@ from madp.data_schema.manifest import sha256_file
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
 from madp.policies.checkpoint import load_policy
-from madp.policies.madp import SamplingSettings
+from madp.policies.madp import SamplingSettings, check_sampling_steps
 from madp.policies.select import GRID_M
 from madp.sim import SimParams
 
@@ -166,6 +166,7 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
     if meta["kind"] != "madp":
         raise InputError(f"{policy}: is a {meta['kind']} checkpoint; madp export writes MADP's graphs "
                          "(docs/guides/export.md: LPAC-K3)")
+    check_sampling_steps(model, sampling.sampling_steps)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     export_graphs(model, out)

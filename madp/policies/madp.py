@@ -41,6 +41,18 @@ def noise_generator(seed: int) -> torch.Generator:
     return g
 
 
+def check_sampling_steps(model, sampling_steps: int) -> None:
+    """A one-line :class:`SettingError` unless ``model`` samples in S = ``sampling_steps``: at most its
+    diffusion steps K, and exactly 1 for a model distilled into one step (it predicts the sample,
+    ``madp train --distill``, and was trained at step K alone)."""
+    if sampling_steps > model.schedule.num_train_steps:
+        raise SettingError("sampling_steps", f"expected at most {model.schedule.num_train_steps} (the model's "
+                           f"diffusion steps K), got {sampling_steps}")
+    if model.config.prediction == "sample" and sampling_steps != 1:
+        raise SettingError("sampling_steps", f"this policy was distilled into one sampler step: expected 1 "
+                           f"(--sampling-steps 1), got {sampling_steps}")
+
+
 #: The frames MADP's model may see the world in (:class:`SamplingSettings`).
 FRAMES = ("world", "d4")
 
@@ -112,9 +124,7 @@ class MADPPolicy:
         if mode not in ("decentralized", "centralized"):
             raise SettingError("mode", f"expected decentralized or centralized, got {mode!r}")
         self.sampling = sampling = sampling or SamplingSettings()
-        if sampling.sampling_steps > model.schedule.num_train_steps:
-            raise SettingError("sampling_steps", f"expected at most {model.schedule.num_train_steps} (the model's "
-                               f"diffusion steps K), got {sampling.sampling_steps}")
+        check_sampling_steps(model, sampling.sampling_steps)
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
         self.sampler, self.fixed_noise, self.frame = sampling.sampler, bool(sampling.fixed_noise), sampling.frame
         self.select, self.candidates = sampling.select, int(sampling.candidates)

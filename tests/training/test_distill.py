@@ -133,3 +133,22 @@ def test_distill_refuses_what_it_cannot_learn_from(dataset, teacher, tmp_path):
     assert code != 0 and "distill needs an MADP checkpoint" in err and len(err.strip().splitlines()) == 1
     code, err = cli("train", "--data", dataset, "--out", tmp_path / "s2", "--distill", tmp_path / "missing.safetensors")
     assert code != 0 and "missing.safetensors" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_one_step_student_refuses_more_sampler_steps(tmp_path):
+    """Trained at step K alone, the student would sample nonsense at S = 3 (the evaluation
+    default): the policy and the export refuse it in one line naming --sampling-steps."""
+    from madp.export.onnx import export_policy
+    from madp.policies import MADPPolicy, SamplingSettings
+    from madp.training.checkpoint import save_policy
+
+    model = MADP(madp_config("cpu", prediction="sample"))
+    with pytest.raises(SettingError, match="^sampling_steps: .*distilled into one sampler step.*got 3"):
+        MADPPolicy(model, sampling=SamplingSettings())
+    MADPPolicy(model, sampling=SamplingSettings(sampling_steps=1))
+    path = tmp_path / "student.safetensors"
+    save_policy(path, model, "madp", {"action_stats": {"count": 1, "mean": [0.0, 0.0], "std": [1.0, 1.0]}})
+    with pytest.raises(SettingError, match="--sampling-steps 1"):
+        export_policy(path, tmp_path / "export")
+    assert not (tmp_path / "export").exists()
+    export_policy(path, tmp_path / "export1", SamplingSettings(sampling_steps=1))
