@@ -193,8 +193,7 @@ def train(
     compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (docs/reports/2026-12-02-training-speed.md)."),
     stop_after_minutes: Optional[float] = typer.Option(None, help="Stop (with a checkpoint) at the first optimizer step after this many minutes of training (a time budget; the lr schedule is not shortened)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
-    distill: Optional[Path] = typer.Option(None, help="MADP: distil this policy file's sampler into one step: the student starts as this teacher and learns to predict, from the same noise, the sample its DPM-Solver++(2M) draws in --distill-steps; evaluate it with --sampling-steps 1."),
-    distill_steps: Optional[int] = typer.Option(None, min=1, help="The teacher's sampler steps S that --distill learns (default 3, the evaluation default)."),
+    distill: Optional[Path] = typer.Option(None, help="MADP: distil this policy file's sampler into one step: the student starts as this teacher and learns to predict, from the same noise, the sample its DPM-Solver++(2M) draws in 3 steps (the evaluation default); evaluate it with --sampling-steps 1."),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
     from madp.training import resolve, train as run_train
@@ -210,8 +209,7 @@ def train(
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
                   stop_after_steps=stop_after_steps, stop_after_minutes=stop_after_minutes, augment=augment,
-                  edge_weight=edge_weight, init=str(init) if init else None, compile=compile or None,
-                  distill=str(distill) if distill else None, distill_steps=distill_steps)
+                  edge_weight=edge_weight, init=str(init) if init else None, compile=compile or None, distill=str(distill) if distill else None)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "

@@ -113,7 +113,7 @@ class _CaseRun:
         return time.perf_counter() - t0
 
     def _loss(self, model, batch: dict, step: int) -> torch.Tensor:
-        from .trainer import batch_loss, step_generator, step_noise
+        from .loss import batch_loss, step_generator, step_noise
 
         draws = None
         if self.cfg.model == "madp":

@@ -28,7 +28,6 @@ import time
 from contextlib import nullcontext
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.distributed as dist
 from torch.utils.data import DataLoader
@@ -40,10 +39,11 @@ from madp.io.atomic import named, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.workers import die_with_parent
 from madp.models import EMA, MADP, lpac_config, madp_config
-from madp.models.samplers import DEFAULT_SAMPLER
 
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
+from .distill import load_teacher, teacher_action_stats
+from .loss import batch_loss, step_generator, step_noise
 from .optim import make_optimizer
 from .progress import EpochBar
 from .stream import ShardStream, StreamPosition, collate_swarms
@@ -77,58 +77,6 @@ def build_model(cfg: TrainConfig, num_robots: int) -> torch.nn.Module:
     return LPAC(lpac_config(cfg.preset, edge_weight=cfg.edge_weight))
 
 
-def step_generator(seed: int, step: int, device: torch.device, stream: int = 0) -> torch.Generator:
-    """The generator of training step ``step`` (stream 0) or validation batch ``step`` (stream 1)."""
-    g = torch.Generator(device=device)
-    g.manual_seed(int(np.random.SeedSequence([seed, stream, step]).generate_state(1, np.uint64)[0] >> 1))
-    return g
-
-
-def step_noise(raw, generator: torch.Generator, batch: dict, parts: int, num_robots: int | None = None) -> tuple:
-    """The diffusion steps ``k [P, B]`` and noise ``[P, B, N, 2]`` of one optimizer step's global batch.
-
-    The global batch is ``parts`` = ranks x micro-batches pieces of ``B`` samples; one draw covers it
-    (``k`` for all, then the noise for all) and each piece takes its slice, so a sample's noise
-    depends on its place in the global batch, not on how many processes share it: ``torchrun
-    --nproc_per_node R`` equals one process with ``--grad-accum R`` and R times the loader workers.
-    With one part this is exactly what ``MADP.loss`` would draw itself. ``num_robots``: the largest N
-    of the datasets (default the batch's), so that a part of smaller swarms takes ``noise[..., :n, :]``."""
-    b, n = batch["actions"].shape[:2]
-    n = max(n, num_robots or 0)
-    device = batch_device(raw)
-    k = raw.schedule.sample_timesteps(b * parts, device, generator)
-    noise = torch.randn((b * parts, n, raw.config.action_dim), generator=generator, device=device, dtype=raw.dtype)
-    return k.view(parts, b), noise.view(parts, b, n, -1)
-
-
-def batch_device(model: torch.nn.Module) -> torch.device:
-    return next(model.parameters()).device
-
-
-def batch_loss(model, raw, batch: dict, cfg: TrainConfig, draws: tuple | None, device, teacher=None) -> torch.Tensor:
-    """The loss of one micro-batch; ``draws`` = :func:`step_noise` (MADP) or None (LPAC-K3). With a
-    ``teacher`` (distillation) the target is its sample from the draw's noise, in float32."""
-    obs = batch["obs"].to(device, non_blocking=True)
-    pos = batch["pos_m"].to(device, non_blocking=True)
-    act = raw.normalize_actions(batch["actions"].to(device, non_blocking=True))
-    valid = batch["valid"].to(device) if "valid" in batch else None  # padding of mixed swarm sizes
-    if teacher is not None:
-        noise = draws[1][:, :obs.shape[1]]
-        target = teacher.sample(obs, pos, cfg.distill_steps, valid=valid, noise=noise)  # no_grad, float32
-    autocast = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else nullcontext()
-    with autocast:
-        if teacher is not None:
-            return model(obs, pos, target, valid, None, None, noise, one_step=True)
-        if cfg.model == "madp":
-            k, noise = draws
-            # forward = DDPM loss (through DDP if wrapped); noise drawn for the largest N, sliced to this batch's
-            return model(obs, pos, act, valid, None, k, noise[:, :obs.shape[1]])
-        if valid is None:
-            return torch.nn.functional.mse_loss(model(obs, pos).float(), act)
-        w = valid.unsqueeze(-1).float()
-        return ((model(obs, pos, valid).float() - act).square() * w).sum() / (w.sum() * act.shape[-1])
-
-
 # --- the run -------------------------------------------------------------------------------------
 class Trainer:
     def __init__(self, cfg: TrainConfig, resume: bool = False, progress: bool = True):
@@ -158,7 +106,8 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.raw = build_model(cfg, self.manifest.num_robots).to(self.device)
         stats = self.manifest.action_stats
-        self.teacher, self.distill_meta = (self._load_teacher(Path(cfg.distill)) if cfg.distill else (None, {}))
+        self.teacher, self.distill_meta = (None, {}) if not cfg.distill else \
+            load_teacher(Path(cfg.distill), self.raw, cfg.preset, cfg.distill_steps, self.device)
         if cfg.init:  # on resume the checkpoint holds the weights; the record of the start stays
             self._init_from(Path(cfg.init), load_weights=not resume)
         elif self.teacher is not None and not resume:  # a student starts as its teacher
@@ -219,25 +168,9 @@ class Trainer:
             self.raw.load_state_dict(model.state_dict())
         self.init_meta = {"path": str(path), "sha256": sha256_file(path), "step": meta.get("step")}
 
-    def _load_teacher(self, path: Path) -> tuple[torch.nn.Module, dict]:
-        """The frozen teacher of a distillation: an MADP policy of this preset that predicts the noise."""
-        from madp.policies.checkpoint import load_policy
-
-        model, meta = load_policy(path, self.device)
-        want = {**self.raw.config.to_dict(), "prediction": "epsilon"}
-        if meta["kind"] != "madp" or meta["config"] != want:
-            raise InputError(f"{path}: distill needs an MADP checkpoint of the {self.cfg.preset} preset that predicts "
-                             f"the noise (it is a {meta['kind']} with another config)")
-        model.requires_grad_(False)
-        return model.eval(), {"path": str(path), "sha256": sha256_file(path), "sampler": DEFAULT_SAMPLER,
-                              "sampling_steps": self.cfg.distill_steps}
-
     # ---- bookkeeping
     def _meta(self, val_loss: float | None) -> dict:
-        st = self.manifest.action_stats.to_dict()
-        if self.teacher is not None:
-            st = {"mean": self.teacher.action_mean.tolist(), "std": self.teacher.action_std.tolist(),
-                  "source": "the teacher"}
+        st = self.manifest.action_stats.to_dict() if self.teacher is None else teacher_action_stats(self.teacher)
         return {"action_stats": st, "train_config": self.cfg.to_dict(), "step": self.step,
                 "epoch": self.epoch, "val_loss": val_loss, "dataset": {
                     "root": str(self.cfg.data), "num_samples": self.manifest.num_samples,

@@ -57,7 +57,8 @@ def test_padded_robots_change_no_loss(dataset, six_robots, model):
     swarms' losses alone: padding reaches neither attention, the graph, nor the mean. Fails if
     ``batch_loss`` drops ``valid`` or slices the noise wrongly."""
     from madp.training.stream import collate_swarms
-    from madp.training.trainer import batch_loss, build_model
+    from madp.training.loss import batch_loss
+    from madp.training.trainer import build_model
 
     m1, m2 = open_dataset(dataset), open_dataset(six_robots)
     a = next(iter(ShardStream(dataset, m1, "train", seed=1)))
