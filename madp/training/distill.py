@@ -13,7 +13,7 @@ from madp.models import MADP
 from madp.models.samplers import DEFAULT_SAMPLER
 
 
-def load_teacher(path: Path, student: MADP, preset: str, steps: int, device: torch.device) -> tuple[MADP, dict]:
+def load_teacher(path: Path, student: MADP, steps: int, device: torch.device) -> tuple[MADP, dict]:
     """The frozen teacher (eval mode, on ``device``) for ``student`` and its record for the checkpoint
     metadata (path, sha256, sampler, S = ``steps``). One-line error unless it is an MADP policy of the
     student's config that predicts the noise."""
@@ -22,7 +22,7 @@ def load_teacher(path: Path, student: MADP, preset: str, steps: int, device: tor
     model, meta = load_policy(path, device)
     want = {**student.config.to_dict(), "prediction": "epsilon"}
     if meta["kind"] != "madp" or meta["config"] != want:
-        raise InputError(f"{path}: distill needs an MADP checkpoint of the {preset} preset that predicts "
+        raise InputError(f"{path}: distill needs an MADP checkpoint of the {student.config.preset} preset that predicts "
                          f"the noise (it is a {meta['kind']} with another config)")
     model.requires_grad_(False)
     return model.eval(), {"path": str(path), "sha256": sha256_file(path), "sampler": DEFAULT_SAMPLER,

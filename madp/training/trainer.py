@@ -107,15 +107,16 @@ class Trainer:
         self.raw = build_model(cfg, self.manifest.num_robots).to(self.device)
         stats = self.manifest.action_stats
         self.teacher, self.distill_meta = (None, {}) if not cfg.distill else \
-            load_teacher(Path(cfg.distill), self.raw, cfg.preset, cfg.distill_steps, self.device)
+            load_teacher(Path(cfg.distill), self.raw, cfg.distill_steps, self.device)
         if cfg.init:  # on resume the checkpoint holds the weights; the record of the start stays
             self._init_from(Path(cfg.init), load_weights=not resume)
         elif self.teacher is not None and not resume:  # a student starts as its teacher
             self.raw.load_state_dict(self.teacher.state_dict())
-        self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
-                                  torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
         if self.teacher is not None:  # the student's samples are the teacher's, in its normalisation
             self.raw.set_action_stats(self.teacher.action_mean, self.teacher.action_std)
+        else:
+            self.raw.set_action_stats(torch.tensor(stats.mean, dtype=torch.float32),
+                                      torch.tensor(stats.std, dtype=torch.float32).clamp_min(1e-6))
         self.opt = make_optimizer(cfg, self.raw.parameters())
         self.ema = EMA(self.raw, cfg.ema_decay) if cfg.model == "madp" else None
         self.model = self.raw
