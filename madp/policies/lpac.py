@@ -64,15 +64,21 @@ class LPACPolicy:
         z = model.cnn(obs.reshape(b * n, *obs.shape[2:]).to(model.dtype))
         h = torch.cat([z, model.normalize_positions(own.reshape(b * n, 2)).to(z.dtype)], dim=-1)
         adj_t = sparse_adjacency(edge_index, weight.to(h.dtype), b * n)
+        # gcn_norm weighs edge j -> i by w_ij / sqrt(deg_i deg_j), deg_i the weight sum of i's own graph.
+        # deg_j is known to j alone, so j sends its features already scaled by deg_j^-1/2 and i applies
+        # w_ij deg_i^-1/2: nothing of j's current state reaches i but what j sent.
+        w_own = torch.zeros(b, n, n, device=dev, dtype=h.dtype)
+        w_own[bb, ii, jj] = weight.to(h.dtype)
+        deg = w_own.sum(-1)
+        dinv = torch.where(deg > 0, deg.pow(-0.5), torch.zeros_like(deg))  # [B, N]: each robot's deg^-1/2
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Sparse invariant checks are implicitly disabled")
             norm, _ = gcn_norm(adj_t, None, b * n, add_self_loops=False, flow=model.gnn[0].flow, dtype=h.dtype)
-            dense = norm.to_dense().reshape(b, n, b, n)[torch.arange(b), :, torch.arange(b)]  # [B, N, N]
             for layer, conv in enumerate(model.gnn):
                 out = conv.lins[0](h)
                 x = h
                 for hop, lin in enumerate(conv.lins[1:]):
-                    x = self._hop(conv, norm, dense, adj, x, envs, f"lpac/{layer * cfg.gnn_hops + hop}")
+                    x = self._hop(conv, norm, w_own, dinv, adj, x, envs, f"lpac/{layer * cfg.gnn_hops + hop}")
                     out = out + lin.forward(x)
                 if conv.bias is not None:
                     out = out + conv.bias
@@ -80,11 +86,13 @@ class LPACPolicy:
         return model.out(model.mlp(h)).reshape(b, n, -1)
 
     @staticmethod
-    def _hop(conv, norm: torch.Tensor, dense: torch.Tensor, adj: torch.Tensor, x: torch.Tensor,
+    def _hop(conv, norm: torch.Tensor, w_own: torch.Tensor, dinv: torch.Tensor, adj: torch.Tensor, x: torch.Tensor,
              envs: list[CoverageEnv], channel: str) -> torch.Tensor:
-        """One round of messages: every robot sends its features ``x [B·N, F]``; each sums what it holds."""
+        """One round of messages: every robot j sends its features ``x [B·N, F]`` scaled by its own
+        ``dinv [B, N]`` (deg_j^-1/2); robot i sums what it holds with its own weights ``w_own [B, N, N]``
+        (w_ij) times its own deg_i^-1/2."""
         b, n = adj.shape[:2]
-        xs = x.reshape(b, n, -1)
+        xs = x.reshape(b, n, -1) * dinv[:, :, None]
         got = [e.network.exchange(channel, e.steps, xs[k].double().cpu().numpy()) for k, e in enumerate(envs)]
         fresh = all(bool(np.all(r.valid[a] & (r.sent_step[a] == e.steps)))
                     for r, e, a in zip(got, envs, adj.cpu().numpy()))
@@ -92,5 +100,5 @@ class LPACPolicy:
             return conv.propagate(norm, x=x, edge_weight=None)
         held = torch.from_numpy(np.stack([r.payload for r in got])).to(x.device, x.dtype)  # [B, N, N, F]
         valid = torch.from_numpy(np.stack([r.valid for r in got])).to(x.device)
-        weights = torch.where(adj & valid, dense, 0.0)
+        weights = torch.where(adj & valid, w_own * dinv[:, :, None], 0.0)
         return torch.einsum("bij,bijf->bif", weights, held).reshape(b * n, -1)

@@ -3,16 +3,17 @@ before anything of it reaches the networks, and a bad one is dropped and counted
 
 A message is dropped, under the first reason that applies (:class:`InboxCounts`), when:
 
-* ``malformed``: it is not a :class:`Message`, its sender or step is not a whole number, or its
-  position is not 2 numbers;
+* ``malformed``: it is not a :class:`Message`, its sender is not a whole number in
+  ``[0, MAX_SENDER]``, its step not a whole number in ``[0, MAX_STEP]``, or its position is not 2 numbers;
 * ``non_finite``: its position or token holds NaN or ±inf;
 * ``bad_token``: it carries no token, or one whose size is not the model's token size;
 * ``future``: it was sent at a later control step than the robot's own;
 * ``stale``: it was sent more than ``max_age`` steps ago (tokens are computed in the frame of their
   own step: the runtime uses this step's by default);
-* ``duplicate``: its sender is the robot itself, or another message of the inbox passed the checks
-  above with the same sender (all of that sender's messages are dropped: which one is genuine
-  cannot be told).
+* ``duplicate``: its sender is the robot itself; or another message of the inbox that passed the
+  checks above has the same sender and a later step (the newest is kept); or messages of the same
+  sender and the same (newest) step differ (all of them are dropped: which one is genuine cannot be
+  told; identical copies count as one, the others as duplicates).
 
 A message that passes is ``out_of_range`` when the sender's position is not within r_c of the
 robot's (it is then not part of the robot's neighbourhood: ignored, not an error), else ``accepted``.
@@ -21,7 +22,6 @@ robot's (it is then not part of the robot's neighbourhood: ignored, not an error
 from __future__ import annotations
 
 import numbers
-from collections import Counter
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -32,6 +32,9 @@ __all__ = ["DROP_REASONS", "InboxCounts", "read_inbox"]
 
 #: Why a message is dropped, in the order the checks apply.
 DROP_REASONS = ("malformed", "non_finite", "bad_token", "future", "stale", "duplicate")
+#: The largest robot id and control step a message may carry (ids and steps seed the robots' noise).
+MAX_SENDER = 2**31 - 1
+MAX_STEP = 2**62
 
 
 @dataclass
@@ -65,6 +68,8 @@ def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None) -
     """``(reason, None)`` for a bad message, else ``(None, (sender, position_m [2] float64, token [D] float32))``."""
     if not isinstance(msg, Message) or not _whole(msg.sender) or not _whole(msg.step):
         return "malformed", None
+    if not (0 <= msg.sender <= MAX_SENDER and 0 <= msg.step <= MAX_STEP):
+        return "malformed", None
     try:
         pos = np.asarray(msg.position_m, dtype=np.float64)
     except (TypeError, ValueError, OverflowError):
@@ -91,7 +96,27 @@ def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None) -
         return "stale", None
     if int(msg.sender) == robot_id:
         return "duplicate", None
-    return None, (int(msg.sender), pos, token)
+    return None, (int(msg.sender), pos, token, int(msg.step))
+
+
+def _newest(good: list[tuple], duplicate: int) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], int]:
+    """Per sender, its newest message ``(sender, position_m, token)`` (module docstring's ``duplicate``
+    rule), ascending by sender, and the duplicate count grown by what was dropped."""
+    by_sender: dict[int, list[tuple]] = {}
+    for g in good:
+        by_sender.setdefault(g[0], []).append(g)
+    kept = []
+    for sender in sorted(by_sender):
+        msgs = by_sender[sender]
+        newest = max(m[3] for m in msgs)
+        top = [m for m in msgs if m[3] == newest]
+        duplicate += len(msgs) - len(top)
+        if all(np.array_equal(m[1], top[0][1]) and np.array_equal(m[2], top[0][2]) for m in top[1:]):
+            duplicate += len(top) - 1
+            kept.append(top[0][:3])
+        else:
+            duplicate += len(top)
+    return kept, duplicate
 
 
 def read_inbox(inbox, robot_id: int, step: int, position_m: np.ndarray, token_dim: int, radius_m: float,
@@ -112,10 +137,7 @@ def read_inbox(inbox, robot_id: int, step: int, position_m: np.ndarray, token_di
             setattr(counts, reason, getattr(counts, reason) + 1)
         else:
             good.append(item)
-    senders = Counter(s for s, _, _ in good)
-    dup = {s for s, c in senders.items() if c > 1}
-    counts.duplicate += sum(senders[s] for s in dup)
-    good = sorted((g for g in good if g[0] not in dup), key=lambda g: g[0])
+    good, counts.duplicate = _newest(good, counts.duplicate)
     if good:
         pos = np.stack([g[1] for g in good])
         if within is None:

@@ -88,3 +88,21 @@ def test_an_action_does_not_change_with_what_the_robot_has_not_received(name, si
         np.testing.assert_allclose(v[rest], u[rest], rtol=0, atol=1e-6)
     else:
         assert np.abs(v[rest] - u[rest]).max() > 1e-4
+
+
+def test_lpac_reads_of_its_neighbours_only_what_they_sent():
+    """With every message one step late, robot i's LPAC-K3 action at step t reads of robot j only what j
+    sent at t − 1. Emptying what j holds now (its own graph, so its degree, which gcn_norm's edge
+    weights use) changes j's action and no other robot's."""
+    ctrl = make_controller("lpac")
+    env = CoverageEnv(_scenario(21), network=NetworkSettings(delay_steps=1))
+    for _ in range(3):
+        env.step(ctrl(env))
+    known = env.neighbour_view()[0]
+    j = int(known.sum(1).argmax())  # a robot with neighbours, so its degree matters
+    other = copy.deepcopy(env)
+    other._received.valid[j, :] = False  # j now holds no neighbour; nothing it has sent changes
+    u, v = ctrl(env), ctrl(other)
+    rest = np.arange(len(u)) != j
+    assert np.abs(v[j] - u[j]).max() > 1e-4
+    np.testing.assert_allclose(v[rest], u[rest], rtol=0, atol=1e-6)
