@@ -1,11 +1,19 @@
-"""A swarm of robot runtimes behind the controller interface: ``madp eval --runtime onnx``.
+"""A swarm of robot runtimes behind the controller interface: ``madp eval --runtime onnx`` and
+``madp rollout --runtime onnx``.
 
 :class:`OnnxMADPPolicy` runs every robot of an environment through its own control step of
-:class:`madp.robot.RobotRuntime` (the exported graphs, the numpy sampler), with perfect links: at each
+:class:`madp.robot.RobotRuntime` (the exported graphs, the numpy sampler): at each
 control step every robot broadcasts its token (:meth:`RobotRuntime.message`), every robot's inbox
-holds the messages of the robots within r_c, and every robot acts on its inbox. The starting noise is
-the PyTorch policy's (:class:`madp.policies.MADPPolicy`: one ``[K, N, 2]`` draw per environment and
-step from the episode's generator), so a suite run both ways differs only by what the runtime computes.
+holds the messages of the robots within r_c (over a network, what its ``token`` channel delivered:
+:func:`token_inboxes`), and every robot acts on its inbox. The starting noise (``noise``) is
+
+* ``torch`` (``madp eval --runtime onnx``): the PyTorch policy's (:class:`madp.policies.MADPPolicy`:
+  one ``[K, N, 2]`` draw per environment and step from the episode's generator), so a suite run both
+  ways differs only by what the runtime computes;
+* ``robot`` (``madp rollout --runtime onnx``): each robot's own, :func:`madp.robot.robot_noise` of the
+  episode's seed, the step and the robot's id, what a robot process draws
+  (:class:`madp.robot.RobotAgent`), so a swarm of robot processes can be checked against this one
+  process.
 """
 
 from __future__ import annotations
@@ -22,13 +30,16 @@ import torch
 from madp.data_schema.manifest import sha256_file
 from madp.errors import SettingError
 from madp.policies.madp import SamplingSettings, noise_generator
-from madp.robot.choice import explore_prior, local_views
+from madp.robot.choice import MAP_RULES, explore_prior, local_views
 from madp.robot import RobotRuntime
 from madp.sim.network import Message
 
 from .onnx import export_policy
 
-__all__ = ["OnnxMADPPolicy", "exported"]
+__all__ = ["NOISES", "OnnxMADPPolicy", "exported", "token_inboxes"]
+
+#: Where :class:`OnnxMADPPolicy`'s starting noise comes from (module docstring).
+NOISES = ("torch", "robot")
 
 _exports: dict[tuple, Path] = {}
 
@@ -49,12 +60,16 @@ def exported(policy: str | Path, sampling: SamplingSettings) -> Path:
 class OnnxMADPPolicy:
     """MADP (decentralized) run robot by robot from the export of ``policy`` with ``sampling``
     (which must be one the runtime runs: :func:`madp.export.onnx.export_policy`); ``seed`` as
-    :class:`madp.policies.MADPPolicy`'s."""
+    :class:`madp.policies.MADPPolicy`'s; ``noise``: one of :data:`NOISES` (module docstring)."""
 
-    def __init__(self, policy: str | Path, sampling: SamplingSettings | None = None, seed: int = 0):
+    def __init__(self, policy: str | Path, sampling: SamplingSettings | None = None, seed: int = 0,
+                 noise: str = "torch"):
         self.sampling = sampling or SamplingSettings()
         if self.sampling.candidates < 1:
             raise SettingError("candidates", f"expected >= 1, got {self.sampling.candidates}")
+        if noise not in NOISES:
+            raise SettingError("noise", f"expected one of {', '.join(NOISES)}, got {noise!r}")
+        self.noise = noise
         self.runtime = RobotRuntime(exported(policy, self.sampling))
         self.candidates = self.sampling.candidates
         self.sent: list = []
@@ -64,43 +79,36 @@ class OnnxMADPPolicy:
         self.seed = int(seed)
         self.generator = noise_generator(seed)
 
-    def act(self, env, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def act(self, env, noise: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Every robot's control step on ``env`` with starting noise ``noise [K, N, 2]`` (robot j's
-        candidates in column j): ``(actions [N, 2], candidates [K, N, 2])`` m/s."""
+        candidates in column j; None: each robot's :func:`madp.robot.robot_noise`):
+        ``(actions [N, 2], candidates [K, N, 2])`` m/s."""
         rt = self.runtime
         seed = self.seed if env.scenario.seed is None else env.scenario.seed
         obs, pos = env.observations(), env.estimates_m()
         known, held = env.neighbour_view()  # what each robot holds of the others' positions
-        views = local_views(env) if rt.rule in ("cell", "explore", "mppi") else None
+        views = local_views(env) if rt.rule in MAP_RULES else None
         if views is not None and rt.rule == "explore":
             views = explore_prior(env, views)
         sent = [rt.message(i, env.steps, obs[i], pos[i], held[i][known[i]], seed) for i in range(env.num_robots)]
         self.sent = sent  # what the robots broadcast (recordings)
-        inboxes = self._inboxes(env, sent)
+        if env.network is not None:
+            rt.max_age = env.network.settings.max_age
+        inboxes = token_inboxes(env, sent)
+        draw = None if noise is None else (lambda ids: noise[:, ids])
         actions, cands = [], []
         for i in range(env.num_robots):
             row = None if views is None else replace(views, **{k: getattr(views, k)[i:i + 1] for k in
                                                               ("start_m", "offset_m", "weights", "origin_m")})
             res = rt.step(i, env.steps, obs[i], pos[i], inboxes[i], seed, view=row,
-                          noise=lambda ids: noise[:, ids], own=sent[i])
+                          noise=draw, own=sent[i])
             actions.append(res.action_mps)
             cands.append(res.candidates_mps)
         return np.stack(actions), np.stack(cands, 1)
 
-    def _inboxes(self, env, sent: list[Message]) -> list[list[Message]]:
-        """Each robot's inbox: its neighbours' messages of this step (true state), or, over a network
-        (:mod:`madp.sim.network`), what the ``token`` channel delivered (kept ones up to its age limit)."""
-        if env.network is None:
-            nbr = env.neighbours()
-            return [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(env.num_robots)]
-        self.runtime.max_age = env.network.settings.max_age
-        payload = np.stack([np.concatenate([m.position_m, m.token]) for m in sent])
-        rec = env.network.exchange("token", env.steps, payload)
-        return [[Message(int(j), int(rec.sent_step[i, j]), rec.payload[i, j, :2].copy(),
-                         rec.payload[i, j, 2:].astype(np.float32)) for j in np.flatnonzero(rec.valid[i])]
-                for i in range(env.num_robots)]
-
-    def _noise(self, g: torch.Generator, n: int) -> np.ndarray:
+    def _noise(self, g: torch.Generator, n: int) -> np.ndarray | None:
+        if self.noise == "robot":
+            return None
         return torch.randn((self.candidates, n, self.runtime.action_dim), generator=g).numpy()
 
     def __call__(self, env) -> np.ndarray:
@@ -108,10 +116,26 @@ class OnnxMADPPolicy:
 
     def act_batch(self, envs: list, generators: list[torch.Generator]) -> np.ndarray:
         """Actions ``[B, N, 2]``: environment b with noise from ``generators[b]``, drawn as the PyTorch
-        policy draws it."""
+        policy draws it (with ``robot`` noise: each robot's own; the generators are not used)."""
         return np.stack([self.act(e, self._noise(g, e.num_robots))[0] for e, g in zip(envs, generators)])
 
     def sample(self, env, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
-        """``num_samples`` swarm actions ``[M, N, 2]`` for the current state (recordings)."""
+        """``num_samples`` swarm actions ``[M, N, 2]`` for the current state (recordings; with ``robot``
+        noise every sample of a step is the same one)."""
         g = generator or self.generator
         return np.stack([self.act(env, self._noise(g, env.num_robots))[0] for _ in range(num_samples)])
+
+
+def token_inboxes(env, sent: list[Message]) -> list[list[Message]]:
+    """Each robot's inbox of token messages at this step, given every robot's ``sent [N]``: its
+    neighbours' (true state) without a network, else what the ``token`` channel of the environment's
+    network (:mod:`madp.sim.network`) delivered, ``Message(sender, step sent, position, token)``
+    (kept ones included, up to the network's age limit)."""
+    if env.network is None:
+        nbr = env.neighbours()
+        return [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(env.num_robots)]
+    payload = np.stack([np.concatenate([m.position_m, m.token]) for m in sent])
+    rec = env.network.exchange("token", env.steps, payload)
+    return [[Message(int(j), int(rec.sent_step[i, j]), rec.payload[i, j, :2].copy(),
+                     rec.payload[i, j, 2:].astype(np.float32)) for j in np.flatnonzero(rec.valid[i])]
+            for i in range(env.num_robots)]

@@ -1,15 +1,20 @@
 """What runs on a robot: one robot's MADP control step from the files ``madp export`` writes, with
-numpy, onnxruntime and the torch-free parts of madp (the simulator's message records, the selection
-rules' numba kernels). Importing this package never imports torch (tests/robot checks it).
+numpy, onnxruntime and the torch-free parts of madp (the simulator's message records and robot maps,
+the selection rules' numba kernels). Importing this package never imports torch (tests/robot checks it).
 
+- :mod:`.agent`: :class:`RobotAgent`, one robot holding only what it knows (its own sensor readings,
+  position estimate and the messages its radio delivered) -> its observation, token and action;
+  :class:`SensorReading`, one reading of its sensor;
 - :mod:`.runtime`: :class:`RobotRuntime`, observation, position and inbox -> action and message;
 - :mod:`.inbox`: which received messages a robot uses, and the counts of those it drops;
 - :mod:`.frame`: the d4 frame of one robot (the evaluation default);
-- :mod:`.choice`: a robot's choice among its K samples (the local cell cost, MPPI's weights, the medoid);
+- :mod:`.choice`: a robot's choice among its K samples (its view of its own map, the local cell cost,
+  MPPI's weights, the medoid);
 - :mod:`.ros2`: the ROS 2 side: message definitions and rosbag2 (MCAP) recordings of rollouts.
 """
 
+from .agent import RobotAgent, SensorReading
 from .inbox import InboxCounts, read_inbox
 from .runtime import RobotRuntime, StepResult, robot_noise
 
-__all__ = ["InboxCounts", "RobotRuntime", "StepResult", "read_inbox", "robot_noise"]
+__all__ = ["InboxCounts", "RobotAgent", "RobotRuntime", "SensorReading", "StepResult", "read_inbox", "robot_noise"]

@@ -1,6 +1,7 @@
 """What one robot computes to choose among its K samples (:mod:`madp.policies.select` has the rules):
-what it knows (:func:`local_views`, with the ``explore`` prior :func:`explore_prior`; computed for
-every robot of an environment at once, row i from robot i's own map and neighbours alone), the local
+what it knows (:func:`map_views`, with the ``explore`` prior :func:`map_prior`: row i from robot i's
+own map and neighbours alone; :func:`local_views` and :func:`explore_prior` compute them for every
+robot of an environment at once, :class:`madp.robot.RobotAgent` for itself), the local
 cell cost of each candidate (:func:`local_cell_costs`), MPPI's weights and the medoid. numpy and numba only (no torch): the robot
 runtime (:mod:`madp.robot.runtime`) and MADP's PyTorch policy run the same code.
 """
@@ -15,18 +16,20 @@ import numpy as np
 
 from madp.sim.env import move
 from madp.sim.params import SimParams
-from madp.sim.robot_maps import EXPLORED_BLOCK_M, robot_cells
+from madp.sim.robot_maps import EXPLORED_BLOCK_M, RobotMaps, robot_cells
 
 if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
-__all__ = ["GRID_M", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views", "medoid_index",
-           "mppi_weights"]
+__all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
+           "map_prior", "map_views", "medoid_index", "mppi_weights"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
 #: MPPI's λ in units of the standard deviation of a robot's K local costs.
 MPPI_TEMPERATURE = 1.0
+#: The selection rules a robot runs that read its own map (they need its :class:`LocalViews` row).
+MAP_RULES = ("cell", "explore", "mppi")
 
 
 @dataclass(frozen=True)
@@ -49,24 +52,38 @@ class LocalViews:
 
 
 def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
-    """Every robot's :class:`LocalViews` row: its own map (``env.maps``, what it sensed) in its
-    256 m window around its own position estimate (zero outside the world), that position, and the
-    neighbours it knows of (:meth:`madp.sim.CoverageEnv.neighbour_view`: its inbox when the environment
-    has a network). ``true_map``: the world map in the same window instead (``oracle_cell``: not what a
-    robot knows)."""
-    s = env.params.local_map_size
-    g = s // GRID_M
+    """Every robot's :class:`LocalViews` row (:func:`map_views` of the environment's maps): its own map
+    (``env.maps``, what it sensed) in its window around its own position estimate, that position (as
+    the motion rule integrates it: its start and offset when its estimate is exact, else the estimate
+    itself), and the neighbours it knows of (:meth:`madp.sim.CoverageEnv.neighbour_view`: its inbox
+    when the environment has a network). ``true_map``: the world map in the same window instead
+    (``oracle_cell``: not what a robot knows)."""
     own = env.estimates_m()
     exact = own is env.positions_m  # no position noise: the motion rule's own start and offset
     start_m, offset_m = (env.start_m, env.offset_m) if exact else (own, np.zeros_like(own))
-    cells = robot_cells(own)
-    starts = cells - s // 2 + env.maps.pad  # each window's lower corner in the padded maps
-    maps = env.maps.world_padded[None] if true_map else env.maps.maps_padded  # the world's, or each robot's own
-    weights = _block_sums(maps, not true_map, starts, g, GRID_M)
-    nbr, held_m = env.neighbour_view()
-    m = max(int(nbr.sum(1).max()), 1)
-    order = np.argsort(~nbr, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
-    valid = np.take_along_axis(nbr, order, 1)
+    known, held_m = env.neighbour_view()
+    return map_views(env.maps, own, start_m, offset_m, known, held_m, true_map)
+
+
+def map_views(maps: RobotMaps, own_m: np.ndarray, start_m: np.ndarray, offset_m: np.ndarray, known: np.ndarray,
+              held_m: np.ndarray, true_map: bool = False) -> LocalViews:
+    """The :class:`LocalViews` rows of the R robots of ``maps`` (one row each, from that robot's map
+    alone): its map in the ``local_size`` window around its position estimate ``own_m [R, 2]`` (zero
+    outside the world), its position as the motion rule integrates it, ``start_m + offset_m`` [R, 2],
+    and the neighbours it knows of: ``held_m [R, M, 2]`` where ``known [R, M]``, kept in their order.
+    ``true_map``: the maps' world map in the same window instead."""
+    s = maps.local_size
+    g = s // GRID_M
+    cells = robot_cells(own_m)
+    starts = cells - s // 2 + maps.pad  # each window's lower corner in the padded maps
+    grids = maps.world_padded[None] if true_map else maps.maps_padded  # the world's, or each robot's own
+    weights = _block_sums(grids, not true_map, starts, g, GRID_M)
+    known, held_m = np.asarray(known, bool), np.asarray(held_m, np.float64).reshape(len(own_m), -1, 2)
+    if known.shape[1] == 0:  # no neighbour held: one invalid slot
+        known, held_m = np.zeros((len(own_m), 1), bool), np.zeros((len(own_m), 1, 2))
+    m = max(int(known.sum(1).max()), 1)
+    order = np.argsort(~known, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
+    valid = np.take_along_axis(known, order, 1)
     neighbours_m = np.take_along_axis(held_m, order[:, :, None], 1)
     return LocalViews(start_m, offset_m, weights, (cells - s // 2).astype(np.float64), neighbours_m, valid)
 
@@ -93,13 +110,19 @@ def _block_sums(maps, own, starts, g, b):  # pragma: no cover (compiled)
 
 
 def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
+    """``views`` (every robot's row) with the ``explore`` prior of each robot's explored map
+    (:func:`map_prior` of ``env.maps``)."""
+    return map_prior(env.maps, views)
+
+
+def map_prior(maps: RobotMaps, views: LocalViews) -> LocalViews:
     """``views`` with each robot's unexplored blocks of its window (inside the world) given the mean
-    mass of its explored ones (1 when those hold none): the weights ``explore`` uses. Reads the
-    robot's own explored map: a window block is explored when every cell of it is (the explored
+    mass of its explored ones (1 when those hold none): the weights ``explore`` uses. Row r reads
+    robot r's own explored map (``maps.explored[r]``): a window block is explored when every cell of it is (the explored
     blocks of its four corner cells), and inside when every cell of it is in the world; both rules
     are kept by the world's 8 symmetries, so the choice is exactly equivariant."""
     g = views.weights.shape[1]
-    pad, w = env.maps.pad, env.params.world_size
+    pad, w = maps.pad, maps.world_size
     corner = views.origin_m.astype(np.int64) + pad  # [N, 2]: each window's first cell, padded
     first = corner[:, :, None] + GRID_M * np.arange(g)  # [N, 2, G]: each window block's first cell
     last = first + GRID_M - 1
@@ -108,9 +131,9 @@ def explore_prior(env: CoverageEnv, views: LocalViews) -> LocalViews:
     # reaches into the next one when the window's corner is not on the explored grid (per robot and axis).
     lo = corner // EXPLORED_BLOCK_M
     straddles = (corner % EXPLORED_BLOCK_M != 0)[:, :, None, None]  # [N, 2, 1, 1]
-    span = np.minimum(lo[:, :, None] + np.arange(g + 1), env.maps.explored.shape[1] - 1)  # [N, 2, G + 1]
+    span = np.minimum(lo[:, :, None] + np.arange(g + 1), maps.explored.shape[1] - 1)  # [N, 2, G + 1]
     n = np.arange(len(corner))[:, None, None]
-    slab = env.maps.explored[n, span[:, 0, :, None], span[:, 1, None, :]]  # [N, G + 1, G + 1]
+    slab = maps.explored[n, span[:, 0, :, None], span[:, 1, None, :]]  # [N, G + 1, G + 1]
     rows = slab[:, :-1] & (slab[:, 1:] | ~straddles[:, 0])  # [N, G, G + 1]
     explored = rows[:, :, :-1] & (rows[:, :, 1:] | ~straddles[:, 1])  # [N, G, G]
     inside = (first >= pad) & (last < pad + w)  # every cell of the block in the world

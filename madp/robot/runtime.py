@@ -42,6 +42,7 @@ __all__ = ["FORMAT", "RobotRuntime", "StepResult", "robot_noise"]
 
 FORMAT = "madp-onnx-runtime/1"
 RULES = ("none", "cell", "explore", "mppi", "medoid")
+GRAPHS = ("perception", "encoder", "denoiser")
 
 Noise = Callable[[np.ndarray], np.ndarray]
 
@@ -82,30 +83,34 @@ class RobotRuntime:
         if not isinstance(spec, dict) or spec.get("format") != FORMAT:
             raise InputError(f"{spec_file}: expected format {FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
         self.spec = spec
+        try:  # a missing or bad field: one line naming the file, not a KeyError
+            graphs = {role: str(spec["graphs"][role]) for role in GRAPHS}
+            m, sel = spec["model"], spec["selection"]
+            self.token_dim, self.z_dim, self.action_dim = int(m["token_dim"]), int(m["z_dim"]), int(m["action_dim"])
+            self.offset_token = m["pos_token"] == "neighbourhood_offset"
+            self.radius_m = float(spec["radii"]["comm_radius_m"])
+            self.world_size_m = float(spec["radii"]["world_size_m"])
+            self.timesteps = [int(k) for k in spec["sampler"]["timesteps"]]
+            self.coefficients = [tuple(float(v) for v in c) for c in spec["sampler"]["coefficients"]]
+            self.mean = np.asarray(spec["action_stats"]["mean"], np.float32)
+            self.std = np.asarray(spec["action_stats"]["std"], np.float32)
+            self.frame, self.rule, self.candidates = sel["frame"], sel["rule"], int(sel["candidates"])
+            self.params = params or SimParams(**spec["motion"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{spec_file}: not a complete {FORMAT} file ({type(e).__name__}: {e})") from None
+        if self.rule not in RULES:
+            raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(RULES)})")
+        self.max_age = max_age
         opts = ort.SessionOptions()
         opts.intra_op_num_threads, opts.inter_op_num_threads = int(threads), 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         self.sessions = {}
-        for role, name in spec["graphs"].items():
+        for role, name in graphs.items():
             try:
                 self.sessions[role] = ort.InferenceSession(str(self.directory / name), opts,
                                                            providers=["CPUExecutionProvider"])
             except Exception as e:  # onnxruntime's own error types for a missing or damaged graph
                 raise InputError(f"{self.directory / name}: not a loadable ONNX graph ({type(e).__name__})") from None
-        m, sel = spec["model"], spec["selection"]
-        self.token_dim, self.z_dim, self.action_dim = int(m["token_dim"]), int(m["z_dim"]), int(m["action_dim"])
-        self.offset_token = m["pos_token"] == "neighbourhood_offset"
-        self.radius_m = float(spec["radii"]["comm_radius_m"])
-        self.world_size_m = float(spec["radii"]["world_size_m"])
-        self.timesteps = [int(k) for k in spec["sampler"]["timesteps"]]
-        self.coefficients = [tuple(float(v) for v in c) for c in spec["sampler"]["coefficients"]]
-        self.mean = np.asarray(spec["action_stats"]["mean"], np.float32)
-        self.std = np.asarray(spec["action_stats"]["std"], np.float32)
-        self.frame, self.rule, self.candidates = sel["frame"], sel["rule"], int(sel["candidates"])
-        if self.rule not in RULES:
-            raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(RULES)})")
-        self.params = params or SimParams(**spec["motion"])
-        self.max_age = max_age
 
     # ------------------------------------------------------------------------------------ helpers
     def frame_of(self, seed: int, step: int) -> int:

@@ -21,10 +21,9 @@ from __future__ import annotations
 import numpy as np
 
 from .idf import importance_map
-from .network import Network, NetworkSettings, Received
-from .observations import stack_observations
+from .network import Message, Network, NetworkSettings, Received
 from .params import SimParams
-from .robot_maps import RobotMaps, robot_cells
+from .robot_maps import RobotMaps, SensorReading, robot_cells
 from .scenario import Scenario, ScenarioError
 from .voronoi import ColumnPrefix, coverage_cost
 
@@ -51,6 +50,12 @@ def move(start_m: np.ndarray, offset_m: np.ndarray, actions_mps: np.ndarray, par
     pos = np.where(pos <= 0.0, BORDER_EPS_M, pos)
     pos = np.where(pos >= w, w - BORDER_EPS_M, pos)
     return pos, pos - start_m
+
+
+def within_reach(own_m: np.ndarray, held_m: np.ndarray, comm_radius_m: float) -> np.ndarray:
+    """``[R, M]`` bool: which of the positions ``held_m [R, M, 2]`` robot r holds are closer than r_c
+    to its own position estimate ``own_m [R, 2]`` (float64): the neighbours it knows of."""
+    return np.linalg.norm(held_m - own_m[:, None], axis=2) < comm_radius_m
 
 
 class CoverageEnv:
@@ -167,8 +172,25 @@ class CoverageEnv:
         own, rec = self._estimates, self._received
         held = rec.payload.copy()
         held[np.arange(self.num_robots), np.arange(self.num_robots)] = own
-        d = np.linalg.norm(held - own[:, None], axis=2)
-        return rec.valid & (d < self.params.comm_radius_m), held
+        return rec.valid & within_reach(own, held, self.params.comm_radius_m), held
+
+    def beacons(self) -> list[list[Message]]:
+        """The position beacons each robot's radio holds at this step, ``Message(sender, step sent,
+        position)`` ascending by sender: over a network, what its ``position`` channel holds (lost
+        ones missing, kept ones older); without one, every other robot's current true position (the
+        robot keeps those within r_c: :meth:`neighbour_view`)."""
+        n = self.num_robots
+        if self._received is None:
+            return [[Message(j, self.steps, self.positions_m[j].copy()) for j in range(n) if j != i] for i in range(n)]
+        rec = self._received
+        return [[Message(int(j), int(rec.sent_step[i, j]), rec.payload[i, j].copy())
+                 for j in np.flatnonzero(rec.valid[i])] for i in range(n)]
+
+    def sensor_readings(self) -> list[SensorReading]:
+        """Robot i's sensor reading at this step, the one its map got (:meth:`RobotMaps.read` at its
+        true cell)."""
+        lo, values = self.maps.read(self.cells())
+        return [SensorReading(lo[i], values[i]) for i in range(self.num_robots)]
 
     def local_maps(self) -> np.ndarray:
         """Raw 256 × 256 crops of each robot's own map [N, S, S] float32."""
@@ -179,13 +201,8 @@ class CoverageEnv:
         and the border around its (estimated) position, its neighbours from :meth:`neighbour_view`."""
         p = self.params
         if self.network is None:
-            cells = self.cells()
-            return stack_observations(self.maps.resized_local_maps(cells, p.obs_size), cells, self.positions_m,
-                                      p.world_size, p.comm_radius_m, p.local_map_size)
-        own = self.estimates_m()
-        cells = robot_cells(own)
-        return stack_observations(self.maps.resized_local_maps(cells, p.obs_size), cells, own, p.world_size,
-                                  p.comm_radius_m, p.local_map_size, view=self.neighbour_view())
+            return self.maps.observations(self.positions_m, p.comm_radius_m, p.obs_size)
+        return self.maps.observations(self.estimates_m(), p.comm_radius_m, p.obs_size, view=self.neighbour_view())
 
     def cost(self) -> float:
         """Coverage cost J of the current positions of the running robots on the world map."""

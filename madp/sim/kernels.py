@@ -308,27 +308,30 @@ def block_row_sums(within, cum, robot, column, lo, hi):
 
 # --- sensing and the block prefix sums of the robots' own maps ----------------------------------------------------
 @_jit
-def sense_squares(maps_padded, world_padded, lo, hi, last_lo, last_hi):
-    """Copy the squares [x0, x1) × [y0, y1) of the world, (x0, y0) = lo[n], (x1, y1) = hi[n] (clipped
-    to the padded maps), into each robot n's map: only the cells outside its previous square
-    [last_lo[n], last_hi[n]), which the previous call already copied (the world does not change),
-    so a robot one cell on copies one new row and one new column of its square, not all of it."""
+def sense_squares(maps_padded, sources, origins, lo, hi, last_lo, last_hi):
+    """Copy into each robot n's map its square [x0, x1) × [y0, y1), (x0, y0) = lo[n], (x1, y1) = hi[n]
+    (clipped to the padded maps), cell (x, y) from ``sources[n]`` (or ``sources[0]`` when there is
+    one source for all: the padded world) at (x, y) − ``origins[n]``: only the cells outside its
+    previous square [last_lo[n], last_hi[n]), which the previous call already copied (the world does
+    not change), so a robot one cell on copies one new row and one new column of its square, not all of it."""
     for n in range(lo.shape[0]):
         x0, y0, x1, y1 = lo[n, 0], lo[n, 1], hi[n, 0], hi[n, 1]
         px0, py0, px1, py1 = last_lo[n, 0], last_lo[n, 1], last_hi[n, 0], last_hi[n, 1]
         if x0 == px0 and y0 == py0 and x1 == px1 and y1 == py1:
             continue
+        source = sources[min(n, sources.shape[0] - 1)]
+        ox, oy = origins[n, 0], origins[n, 1]
         for x in range(x0, x1):
             dst = maps_padded[n, x]
-            src = world_padded[x]
+            src = source[x - ox]
             if px0 <= x < px1 and py0 < py1:  # a row the previous square covered in [py0, py1)
                 for y in range(y0, min(y1, py0)):
-                    dst[y] = src[y]
+                    dst[y] = src[y - oy]
                 for y in range(max(y0, py1), y1):
-                    dst[y] = src[y]
+                    dst[y] = src[y - oy]
             else:
                 for y in range(y0, y1):
-                    dst[y] = src[y]
+                    dst[y] = src[y - oy]
 
 
 @_jit

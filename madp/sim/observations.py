@@ -74,14 +74,17 @@ def boundary_maps(cells_xy: np.ndarray, world_size: int, local_size: int = 256, 
     """Resized boundary maps [N, out, out]: 1 outside the world, 0 inside, around each robot cell.
 
     cells_xy [N, 2] int: the robots' rounded cells c; the local window covers c-S/2 .. c+S/2-1.
-    The raw map is 1 - inside_x ⊗ inside_y, so its resize is 1 - (R·inside_x) ⊗ (R·inside_y).
+    The raw map is 1 - inside_x ⊗ inside_y, so its resize is 1 - (R·inside_x) ⊗ (R·inside_y). Each
+    R·inside sums float32 taps in float64 (exactly: a few taps within a few powers of two) and is
+    rounded once to float32, so a robot's map does not depend on the other rows of ``cells_xy``
+    (a float32 matrix product's rounding does: a robot computing its own gets the swarm's row).
     """
-    r = resize_matrix(local_size, out_size)
+    r = resize_matrix(local_size, out_size).astype(np.float64)
     offs = np.arange(local_size) - local_size // 2
     idx = cells_xy[:, :, None] + offs  # [N, 2, S]
-    inside = ((idx >= 0) & (idx < world_size)).astype(np.float32)
-    rx = inside[:, 0] @ r.T  # [N, out]
-    ry = inside[:, 1] @ r.T
+    inside = ((idx >= 0) & (idx < world_size)).astype(np.float64)
+    rx = (inside[:, 0] @ r.T).astype(np.float32)  # [N, out]
+    ry = (inside[:, 1] @ r.T).astype(np.float32)
     return 1.0 - rx[:, :, None] * ry[:, None, :]
 
 

@@ -1,5 +1,11 @@
 """What each robot has sensed: its own copy of the world map, zero where it has not looked.
 
+A robot's map is written from its sensor's readings alone (:class:`SensorReading`,
+:meth:`RobotMaps.record`); the world's side reads them (:meth:`RobotMaps.read`), and the simulator's
+step does both at once (:meth:`RobotMaps.sense`, the same kernel and bookkeeping). The simulator
+keeps every robot's map in one :class:`RobotMaps`; a robot holds its own in one of one robot with no
+world map (:class:`madp.robot.RobotAgent`).
+
 Maps are kept zero-padded by half a local window on every side, [N, W + S, W + S] float32 with
 S = local_map_size, so every sensor update and every local-map crop is one rectangular slice with
 no clipping (cells outside the world are zero in the world map too).
@@ -14,11 +20,14 @@ moved to a new cell are recomputed.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from . import kernels
 from .kernels import BLOCK  # rows per block of the block prefix sums
-from .observations import resize_windows
+from .observations import resize_windows, stack_observations
 
 #: Side (m) of the blocks of a robot's explored map (:attr:`RobotMaps.explored`).
 EXPLORED_BLOCK_M = 4
@@ -29,17 +38,35 @@ def robot_cells(positions_m: np.ndarray) -> np.ndarray:
     return np.floor(np.asarray(positions_m) + 0.5).astype(np.int64)
 
 
-class RobotMaps:
-    """Per-robot sensed maps. ``sense`` copies each robot's sensor square from the world map."""
+@dataclass(frozen=True)
+class SensorReading:
+    """One reading of a robot's sensor at one control step, as a real sensor returns it:
+    ``lo_cell [2]`` int64: the world cell (x, y) of the sensor window's lower corner (the robot's
+    rounded true position − sensor_size // 2 per axis); ``values [s, s]`` float32: the importance of
+    the world cells lo .. lo + s − 1, indexed [x, y], 0 for cells outside the world
+    (s = sensor_size). :meth:`RobotMaps.read` reads every robot's at once."""
 
-    def __init__(self, world_map_f32: np.ndarray, num_robots: int, sensor_size: int, local_size: int):
-        w = world_map_f32.shape[0]
+    lo_cell: np.ndarray
+    values: np.ndarray
+
+
+class RobotMaps:
+    """Per-robot sensed maps, built from sensor readings alone: :meth:`record` writes readings into
+    the maps; :meth:`read` is the world's side, what each robot's sensor returns from ``world_map_f32``;
+    :meth:`sense` is both (the simulator's step). ``world_map_f32=None``: maps with no world (what a
+    robot holds of itself, :class:`madp.robot.RobotAgent`); ``world_size`` is then required."""
+
+    def __init__(self, world_map_f32: np.ndarray | None, num_robots: int, sensor_size: int, local_size: int,
+                 world_size: int | None = None):
+        w = int(world_size) if world_map_f32 is None else world_map_f32.shape[0]
         self.world_size = w
         self.pad = local_size // 2
         self.sensor_half = sensor_size // 2
         self.local_size = local_size
-        self.world_padded = np.zeros((w + 2 * self.pad, w + 2 * self.pad), dtype=np.float32)
-        self.world_padded[self.pad : self.pad + w, self.pad : self.pad + w] = world_map_f32
+        self.world_padded: np.ndarray | None = None
+        if world_map_f32 is not None:
+            self.world_padded = np.zeros((w + 2 * self.pad, w + 2 * self.pad), dtype=np.float32)
+            self.world_padded[self.pad : self.pad + w, self.pad : self.pad + w] = world_map_f32
         self.maps_padded = np.zeros((num_robots, w + 2 * self.pad, w + 2 * self.pad), dtype=np.float32)
         self._cum: np.ndarray | None = None  # [N, W, W/16 + 1, 2] float64 sums of whole blocks below
         self._within: np.ndarray | None = None  # [N, W, W/16, 16, 2] float32 running sums in a block
@@ -48,7 +75,7 @@ class RobotMaps:
         self._last_cells: np.ndarray | None = None
         self._last_lo = self._last_hi = np.zeros((num_robots, 2), dtype=np.int64)  # last sensed squares (padded)
         # Bounding box of what each robot has sensed, in padded coordinates: (x0, y0) [N, 2] and
-        # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by sense() alone).
+        # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by record() alone).
         self.seen_lo = np.full((num_robots, 2), self.maps_padded.shape[1], dtype=np.int64)
         self.seen_hi = np.zeros((num_robots, 2), dtype=np.int64)
         # What each robot has looked at (the library's exploration map), in blocks of
@@ -57,24 +84,72 @@ class RobotMaps:
         b = self.maps_padded.shape[1] // EXPLORED_BLOCK_M
         self.explored = np.zeros((num_robots, b, b), dtype=bool)
 
+    def read(self, cells_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What each robot's sensor returns at cells ``cells_xy [N, 2]`` (the world's side):
+        ``(lo_cell [N, 2] int64, values [N, s, s] float32)``, the world's cells c − s/2 .. c + s/2 − 1
+        per axis, 0 outside the world (robot n's :class:`SensorReading`)."""
+        world = self._world()
+        lo_cell = np.asarray(cells_xy, dtype=np.int64).reshape(-1, 2) - self.sensor_half
+        s, size = 2 * self.sensor_half, world.shape[0]
+        lo = lo_cell + self.pad
+        if ((lo >= 0) & (lo <= size - s)).all():  # every square inside the padded world (the rule): one gather
+            return lo_cell, sliding_window_view(world, (s, s))[lo[:, 0], lo[:, 1]]
+        values = np.zeros((len(lo), s, s), np.float32)
+        a, b = np.clip(lo, 0, size), np.clip(lo + s, 0, size)
+        for n in np.flatnonzero((b > a).all(1)):  # squares reaching past the padding (hand-made states)
+            values[n, a[n, 0] - lo[n, 0] : b[n, 0] - lo[n, 0], a[n, 1] - lo[n, 1] : b[n, 1] - lo[n, 1]] = \
+                world[a[n, 0] : b[n, 0], a[n, 1] : b[n, 1]]
+        return lo_cell, values
+
+    def record(self, lo_cell: np.ndarray, values: np.ndarray) -> None:
+        """Write robot n's sensor reading (``lo_cell [N, 2]``, ``values [N, s, s]`` float32, as
+        :meth:`read` returns them) into its map; mark what it has seen and explored."""
+        lo_cell = np.asarray(lo_cell, dtype=np.int64).reshape(-1, 2)
+        values = np.ascontiguousarray(values, dtype=np.float32)
+        s = 2 * self.sensor_half
+        if values.shape != (len(lo_cell), s, s):
+            raise ValueError(f"expected readings of shape {(len(lo_cell), s, s)}, got {values.shape}")
+        self._store(lo_cell, values, lo_cell + self.pad)
+
     def sense(self, cells_xy: np.ndarray) -> None:
-        """Copy the world's cells c-s/2 .. c+s/2-1 (per axis) into each robot's map."""
-        cells_xy = np.asarray(cells_xy, dtype=np.int64)
-        lo = cells_xy - self.sensor_half + self.pad
-        hi = cells_xy + self.sensor_half + self.pad
+        """Each robot at ``cells_xy [N, 2]`` senses: the world's cells c − s/2 .. c + s/2 − 1 (per axis)
+        land in its map, as :meth:`record` of :meth:`read` writes them (without building the readings)."""
+        lo_cell = np.asarray(cells_xy, dtype=np.int64).reshape(-1, 2) - self.sensor_half
+        self._store(lo_cell, self._world()[None], np.zeros_like(lo_cell))
+
+    def _world(self) -> np.ndarray:
+        if self.world_padded is None:
+            raise ValueError("these maps hold no world map: there is nothing to read")
+        return self.world_padded
+
+    def _store(self, lo_cell: np.ndarray, sources: np.ndarray, origins: np.ndarray) -> None:
+        """The squares at ``lo_cell [N, 2]`` into the maps, padded cell p of robot n's from
+        ``sources[n or 0][p - origins[n]]`` (:func:`madp.sim.kernels.sense_squares`), and the bookkeeping."""
+        cells_xy = lo_cell + self.sensor_half
+        size = self.maps_padded.shape[1]
         # Robots farther than half a sensor outside the world see nothing (library rule); positions
         # are clamped inside the world, so the clip below only guards hand-made states.
-        lo = np.clip(lo, 0, self.world_padded.shape[0])
-        hi = np.clip(hi, 0, self.world_padded.shape[0])
+        lo = np.clip(lo_cell + self.pad, 0, size)
+        hi = np.clip(lo_cell + self.pad + 2 * self.sensor_half, 0, size)
         moved = np.ones(len(cells_xy), bool) if self._last_cells is None else (cells_xy != self._last_cells).any(1)
         self._last_cells = cells_xy.copy()
-        kernels.sense_squares(self.maps_padded, self.world_padded, lo, hi, self._last_lo, self._last_hi)
+        kernels.sense_squares(self.maps_padded, sources, origins, lo, hi, self._last_lo, self._last_hi)
         self._last_lo, self._last_hi = lo, hi
         np.minimum(self.seen_lo, lo, out=self.seen_lo)
         np.maximum(self.seen_hi, hi, out=self.seen_hi)
         kernels.mark_explored(self.explored, lo, hi, EXPLORED_BLOCK_M)
         if self._cum is not None and moved.any():
             self._stale.append(np.where(moved[:, None], cells_xy, -(1 << 40)))
+
+    def observations(self, positions_m: np.ndarray, comm_radius_m: float, out_size: int,
+                     view: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """O [N, 4, out, out] float32 of the robots at (their own estimates of) ``positions_m [N, 2]``:
+        each one's own map and the border in the window around its rounded position, and its
+        neighbours: ``view = (known [N, M] bool, positions_m [N, M, 2])``, those it knows of
+        (:func:`madp.sim.observations.stack_observations`; None: every robot's true neighbours)."""
+        cells = robot_cells(positions_m)
+        return stack_observations(self.resized_local_maps(cells, out_size), cells, positions_m, self.world_size,
+                                  comm_radius_m, self.local_size, view=view)
 
     # --- prefix sums along y, in blocks of 16 rows -------------------------------------------------
     def block_sums(self) -> tuple[np.ndarray, np.ndarray]:
@@ -124,3 +199,4 @@ class RobotMaps:
         """Robot n's full map [W, W] (a view)."""
         p, w = self.pad, self.world_size
         return self.maps_padded[n, p : p + w, p : p + w]
+

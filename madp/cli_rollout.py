@@ -1,0 +1,84 @@
+"""``madp rollout``'s work (:mod:`madp.cli` parses its options): one controller on one scenario, with
+``--runtime onnx`` decentralized MADP robot by robot through the exported graphs, each robot's
+starting noise its own (:class:`madp.export.swarm.OnnxMADPPolicy` with ``noise="robot"``, what a robot
+process draws: the one-process reference of a swarm of robot processes)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import typer
+
+from madp.errors import SettingError
+from madp.io.atomic import write_json_atomic
+
+#: ``--runtime``: how decentralized MADP runs.
+RUNTIMES = ("torch", "onnx")
+
+
+def network_settings(text: str):
+    """``--network``: a faults-suite group's network, or NAME=VALUE items (:meth:`NetworkSettings.parse`)."""
+    from madp.eval.suites import FAULTS
+    from madp.sim.network import NetworkSettings
+
+    return FAULTS[text] if text in FAULTS else NetworkSettings.parse(text)
+
+
+def check_runtime(runtime: str, controller: str) -> None:
+    """Refuse, before anything is read or run, a ``--runtime`` that is not one of :data:`RUNTIMES`,
+    ``onnx`` for a controller other than decentralized MADP, or ``onnx`` without onnxruntime."""
+    from madp.controllers import controller_info
+
+    if runtime not in RUNTIMES:
+        raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {runtime!r}")
+    if runtime == "onnx":
+        info = controller_info(controller)
+        if not info.samples or info.mode != "decentralized":
+            raise SettingError("runtime", f"onnx runs MADP robot by robot (decentralized), not {controller}")
+        if importlib.util.find_spec("onnxruntime") is None:
+            raise SettingError("runtime", "onnx needs onnxruntime, which is not installed (pip install onnxruntime)")
+
+
+def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: int | None, steps: int, out: Path,
+                video: Path | None, device: str, select: str | None, candidates: int | None, network: str | None,
+                record: Path | None, record_format: str, runtime: str) -> None:
+    """``madp rollout`` with its options' values: write the result JSON (and the recording, the video)
+    and print a line for each."""
+    from madp.controllers import controller_info, make_controller, resolve_checkpoint
+    from madp.eval.recorders import RECORD_FORMATS, recorder
+    from madp.policies import SamplingSettings
+    from madp.policies.device import resolve_device
+    from madp.sim import CoverageEnv, Scenario, rollout as run
+    from madp.video import Frames, check_video_path
+
+    learned = controller_info(controller).learned  # an unknown name is refused before anything is read
+    if checkpoint is not None and not learned:
+        raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
+    check_runtime(runtime, controller)
+    device = resolve_device(device)  # checked, like the video path, before anything is read or run
+    sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
+    frames = [Frames(check_video_path(video), steps)] if video is not None else []
+    if record_format not in RECORD_FORMATS:  # the format is checked before anything runs
+        raise SettingError("record-format", f"expected one of {', '.join(RECORD_FORMATS)}, got {record_format!r}")
+    net = network_settings(network) if network is not None else None
+    sc = Scenario.load(scenario)
+    seed = seed if seed is not None else sc.seed or 0
+    if runtime == "onnx":
+        from madp.export.swarm import OnnxMADPPolicy
+
+        ctrl = OnnxMADPPolicy(resolve_checkpoint(controller, checkpoint and str(checkpoint)), sampling, seed=seed,
+                              noise="robot")
+    else:
+        ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed, sampling=sampling, device=device)
+    env = CoverageEnv(sc, network=net)
+    rec = recorder(record_format, env, ctrl, controller, steps) if record is not None else None
+    result = run(env, ctrl, steps, frames + ([rec] if rec else []))
+    write_json_atomic(out, result.to_json(controller))
+    if rec is not None:
+        typer.echo(f"{record_format} recording: {rec.write(record)}")
+    typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
+               f" (converged at {result.converged_at}) -> {out}")
+    for f in frames:
+        v = f.write(progress=True)
+        typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
