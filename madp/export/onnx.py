@@ -8,7 +8,7 @@ What a directory made by :func:`export_policy` holds (the robot runtime :mod:`ma
                        -> ``memory [B, T, d_model]``
 ``denoiser.onnx``      Psi_D and the head: ``noisy_actions [B, T, 2]``, ``step [B]`` int64, ``memory``,
                        ``positions_m``, ``mask`` -> ``eps [B, T, 2]`` (the predicted noise)
-``runtime.json``       what the loop around them needs (:func:`runtime_spec`)
+``runtime.json``       what the loop around them needs (:func:`runtime_spec`) and each graph's sha256
 =====================  ====================================================================================
 
 T, the tokens of a neighbourhood, and the batch axes are dynamic. The sampling loop stays in plain code
@@ -28,12 +28,14 @@ from torch import Tensor, nn
 from madp.data_schema.manifest import sha256_file
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
+from madp.io.lock import locked_dir
+from madp.io.owned import foreign_files
 from madp.policies.checkpoint import load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
 from madp.policies.select import GRID_M
 from madp.sim import SimParams
 
-__all__ = ["FORMAT", "GRAPHS", "OPSET", "export_policy", "export_graphs", "runtime_spec"]
+__all__ = ["FORMAT", "GRAPHS", "OPSET", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
 
 #: ``runtime.json``'s ``format``: the layout the runtime reads.
 FORMAT = "madp-onnx-runtime/1"
@@ -146,14 +148,20 @@ def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, par
 
 
 def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSettings | None = None,
-                  params: SimParams | None = None) -> dict:
+                  params: SimParams | None = None, overwrite: bool = False) -> dict:
     """Export the MADP checkpoint ``policy`` to ``out_dir`` (created): the three graphs and
     ``runtime.json`` (module docstring). ``sampling``: the loop the JSON describes (default: the
     evaluation default, ``SamplingSettings()``); ``params``: the
     simulator constants of its motion (default :class:`SimParams`). Returns the JSON written.
 
-    One-line errors for a file that is not a MADP checkpoint and for settings the runtime does not
-    run (a sampler other than DPM-Solver++, ``fixed_noise``, the ``oracle`` rules that read the world)."""
+    The directory is locked while it is written. A directory holding any file an export does not write
+    is refused (naming the file); one holding an earlier export is replaced only with ``overwrite``.
+    Its ``runtime.json`` is removed first and written last, with the sha256 of each graph, so an
+    interrupted export never leaves graphs the runtime would load (it checks them).
+
+    One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
+    settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
+    ``oracle`` rules that read the world)."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
@@ -167,10 +175,29 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise InputError(f"{policy}: is a {meta['kind']} checkpoint; madp export writes MADP's graphs "
                          "(docs/guides/export.md: LPAC-K3)")
     check_sampling_steps(model, sampling.sampling_steps)
+    bad = [name for name, t in (*model.named_parameters(), *model.named_buffers())
+           if t.is_floating_point() and not bool(torch.isfinite(t).all())]
+    if bad:
+        raise InputError(f"{policy}: non-finite weights (NaN or inf) in {bad[0]}"
+                         f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}; a robot would command NaN")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    export_graphs(model, out)
-    spec = runtime_spec(model, meta, sha256_file(policy), sampling, params or SimParams())
-    write_json_atomic(out / RUNTIME_JSON, spec)
+    with locked_dir(out):
+        owned = [*GRAPHS.values(), RUNTIME_JSON]
+        foreign = foreign_files(out, owned)
+        if foreign:
+            raise InputError(f"{foreign[0]}: not a file madp export writes; export into an empty --out directory")
+        if any((out / name).exists() for name in owned) and not overwrite:
+            raise InputError(f"{out}: already holds an export; pass --overwrite to replace it")
+        (out / RUNTIME_JSON).unlink(missing_ok=True)  # no loadable export until every graph is written
+        paths = export_graphs(model, out)
+        spec = write_runtime(out, runtime_spec(model, meta, sha256_file(policy), sampling, params or SimParams()), paths)
+    return spec
+
+
+def write_runtime(out: Path, spec: dict, paths: dict[str, Path]) -> dict:
+    """Write ``runtime.json`` into ``out`` (atomically, after the graphs): ``spec`` with the sha256 of
+    each graph of ``paths`` (``{role: path}``, :func:`export_graphs`), which the runtime checks at load."""
+    spec = {**spec, "graph_sha256": {role: sha256_file(path) for role, path in paths.items()}}
+    write_json_atomic(Path(out) / RUNTIME_JSON, spec)
     return spec
 

@@ -18,8 +18,9 @@ holds the messages of the robots within r_c (over a network, what its ``token`` 
 
 from __future__ import annotations
 
+import atexit
 import hashlib
-import os
+import shutil
 import tempfile
 from dataclasses import replace
 from pathlib import Path
@@ -45,15 +46,17 @@ _exports: dict[tuple, Path] = {}
 
 
 def exported(policy: str | Path, sampling: SamplingSettings) -> Path:
-    """A directory holding ``madp export`` of ``policy`` for ``sampling``, made once per process (in
-    the system's temporary directory, named by the checkpoint's sha256 and the settings)."""
+    """A directory holding ``madp export`` of ``policy`` for ``sampling``, made once per process (a
+    temporary directory named by the checkpoint's sha256 and the settings, removed when the process
+    exits)."""
     digest = sha256_file(policy)
     key = (digest, tuple(sorted(sampling.as_dict().items())))
     if key not in _exports:
         name = hashlib.sha256(repr(key).encode()).hexdigest()[:16]
-        out = Path(tempfile.gettempdir()) / f"madp-export-{os.getpid()}-{name}"
-        export_policy(policy, out, sampling)
-        _exports[key] = out
+        out = Path(tempfile.mkdtemp(prefix=f"madp-export-{name}-"))
+        atexit.register(shutil.rmtree, out, True)
+        export_policy(policy, out / "export", sampling)
+        _exports[key] = out / "export"
     return _exports[key]
 
 

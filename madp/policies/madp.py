@@ -9,7 +9,8 @@ On environments with a network (:mod:`madp.sim.network`) decentralized MADP runs
 each robot computes its token from its own observation (its neighbours' channels from its inbox) and
 its neighbourhood offset from the positions it holds, sends it with its position on the ``token``
 channel, and samples from the tokens and positions in its own inbox (:meth:`MADP.sample_views`); a
-token that arrives late was computed in the frame of the step it was sent.
+token that arrives late was computed in the frame of the step it was sent, and is used only when that
+frame is this step's (with ``frame="d4"``, 1 step in 8 on average).
 """
 
 from __future__ import annotations
@@ -208,7 +209,7 @@ class MADPPolicy:
             rec = e.network.exchange("token", e.steps, sent)
             pos_v[k] = frame(rec.payload[:, :, :2], k)
             tokens_v[k] = torch.from_numpy(rec.payload[:, :, 2:].astype(np.float32)).to(dev, tokens.dtype)
-            member[k] = torch.from_numpy(rec.valid).to(dev)
+            member[k] = torch.from_numpy(rec.valid & self._same_frame(e, rec.sent_step, gs[k])).to(dev)
             key[k] = torch.from_numpy(rec.sent_step + 1).to(dev)
         pos_v = torch.where(eye[..., None], own_f[:, :, None], pos_v)
         tokens_v = torch.where(eye[..., None], tokens[:, :, None], tokens_v)
@@ -217,6 +218,15 @@ class MADPPolicy:
         valid = torch.ones(b, n, dtype=torch.bool, device=dev)
         return model.sample_views(tokens_v, pos_v, member, valid, self.num_steps, self.eta, noise=noise,
                                   step_noise=step_noise, key=key, sampler=self.sampler, copies=copies)
+
+    def _same_frame(self, env: CoverageEnv, sent_step: np.ndarray, g: int) -> np.ndarray:
+        """``[N, N]`` bool: which held tokens, sent at ``sent_step [N, N]``, were computed in this step's
+        frame ``g`` (a token means nothing in another frame; all of them with ``frame="world"``)."""
+        if self.frame != "d4":
+            return np.ones(sent_step.shape, bool)
+        seed = self.seed if env.scenario.seed is None else env.scenario.seed
+        frames = {int(s): frame_element(seed, int(s)) if s >= 0 else -1 for s in np.unique(sent_step)}
+        return np.vectorize(lambda s: frames[int(s)] == g, otypes=[bool])(sent_step) | (sent_step == env.steps)
 
     @torch.no_grad()
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:

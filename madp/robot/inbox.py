@@ -8,8 +8,10 @@ A message is dropped, under the first reason that applies (:class:`InboxCounts`)
 * ``non_finite``: its position or token holds NaN or ±inf;
 * ``bad_token``: it carries no token, or one whose size is not the model's token size;
 * ``future``: it was sent at a later control step than the robot's own;
-* ``stale``: it was sent more than ``max_age`` steps ago (tokens are computed in the frame of their
-  own step: the runtime uses this step's by default);
+* ``stale``: it was sent more than ``max_age`` steps ago;
+* ``other_frame``: it was sent at a step whose frame differs from this step's (``same_frame(step)``
+  is False: a token is computed in the frame of the step it was sent, :mod:`madp.robot.frame`, and
+  means nothing in another one);
 * ``duplicate``: its sender is the robot itself; or another message of the inbox that passed the
   checks above has the same sender and a later step (the newest is kept); or messages of the same
   sender and the same (newest) step differ (all of them are dropped: which one is genuine cannot be
@@ -31,7 +33,7 @@ from madp.sim.network import Message
 __all__ = ["DROP_REASONS", "InboxCounts", "read_inbox"]
 
 #: Why a message is dropped, in the order the checks apply.
-DROP_REASONS = ("malformed", "non_finite", "bad_token", "future", "stale", "duplicate")
+DROP_REASONS = ("malformed", "non_finite", "bad_token", "future", "stale", "other_frame", "duplicate")
 #: The largest robot id and control step a message may carry (ids and steps seed the robots' noise).
 MAX_SENDER = 2**31 - 1
 MAX_STEP = 2**62
@@ -50,6 +52,7 @@ class InboxCounts:
     bad_token: int = 0
     future: int = 0
     stale: int = 0
+    other_frame: int = 0
     duplicate: int = 0
 
     @property
@@ -64,7 +67,8 @@ def _whole(v) -> bool:
     return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
-def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None) -> tuple[str | None, tuple | None]:
+def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None,
+           same_frame=None) -> tuple[str | None, tuple | None]:
     """``(reason, None)`` for a bad message, else ``(None, (sender, position_m [2] float64, token [D] float32))``."""
     if not isinstance(msg, Message) or not _whole(msg.sender) or not _whole(msg.step):
         return "malformed", None
@@ -94,6 +98,8 @@ def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None) -
         return "future", None
     if max_age is not None and int(msg.step) < step - max_age:
         return "stale", None
+    if same_frame is not None and int(msg.step) != step and not same_frame(int(msg.step)):
+        return "other_frame", None
     if int(msg.sender) == robot_id:
         return "duplicate", None
     return None, (int(msg.sender), pos, token, int(msg.step))
@@ -120,17 +126,20 @@ def _newest(good: list[tuple], duplicate: int) -> tuple[list[tuple[int, np.ndarr
 
 
 def read_inbox(inbox, robot_id: int, step: int, position_m: np.ndarray, token_dim: int, radius_m: float,
-               within=None, max_age: int | None = 0) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], InboxCounts]:
+               within=None, max_age: int | None = 0, same_frame=None
+               ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], InboxCounts]:
     """The messages of ``inbox`` (any iterable; None is an empty inbox) robot ``robot_id`` keeps at
     control step ``step``: ``([(sender, position_m [2], token [token_dim]), ...] ascending by sender,
     counts)``. ``within(position_m [M, 2]) -> [M] bool`` decides who is in range (default: Euclidean
-    distance < ``radius_m`` in float64). Never raises on a message's content."""
+    distance < ``radius_m`` in float64); ``same_frame(sent_step) -> bool`` whether a message of an
+    earlier step was computed in this step's frame (None: every frame is this one). Never raises on a
+    message's content."""
     counts = InboxCounts()
     good: list[tuple[int, np.ndarray, np.ndarray]] = []
     for msg in list(inbox or ()):
         counts.received += 1
         try:
-            reason, item = _check(msg, robot_id, step, token_dim, max_age)
+            reason, item = _check(msg, robot_id, step, token_dim, max_age, same_frame)
         except Exception:  # anything else a hostile object does: one more bad message
             reason, item = "malformed", None
         if reason is not None:

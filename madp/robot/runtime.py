@@ -23,13 +23,14 @@ episode's seed, the step and the robot's id (:func:`robot_noise`). Nothing here 
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from madp.errors import InputError
+from madp.errors import InputError, SettingError
 from madp.io.jsonfile import read_json
 from .choice import LocalViews, local_cell_costs, medoid_index, mppi_weights
 from madp.sim.network import Message
@@ -38,7 +39,7 @@ from madp.sim.params import SimParams
 from .frame import frame_element, inverse_action, transform_observation, transform_points
 from .inbox import InboxCounts, read_inbox
 
-__all__ = ["FORMAT", "RobotRuntime", "StepResult", "robot_noise"]
+__all__ = ["FORMAT", "RobotRuntime", "StepResult", "check_own", "robot_noise"]
 
 FORMAT = "madp-onnx-runtime/1"
 RULES = ("none", "cell", "explore", "mppi", "medoid")
@@ -54,6 +55,18 @@ def robot_noise(seed: int, step: int, ids: np.ndarray, candidates: int) -> np.nd
     out = [np.random.default_rng([int(seed) & ((1 << 63) - 1), int(step), int(i), 0x4D41]).standard_normal((candidates, 2))
            for i in ids]
     return np.stack(out, 1).astype(np.float32) if out else np.zeros((candidates, 0, 2), np.float32)
+
+
+def check_own(observation: np.ndarray, position_m: np.ndarray) -> None:
+    """A robot's own inputs must be finite: a NaN or infinite observation ``[4, S, S]`` or position
+    ``[2]`` is a :class:`madp.errors.SettingError` naming it (a robot's sensors are broken: the caller
+    stops the robot, never sends a NaN command)."""
+    for name, value, shape in (("observation", observation, None), ("position_m", position_m, (2,))):
+        a = np.asarray(value, dtype=np.float64)
+        if shape is not None and a.shape != shape:
+            raise SettingError(name, f"expected shape {shape}, got {a.shape}")
+        if not np.isfinite(a).all():
+            raise SettingError(name, f"expected finite values, got {int((~np.isfinite(a)).sum())} NaN or infinite")
 
 
 @dataclass(frozen=True)
@@ -101,6 +114,7 @@ class RobotRuntime:
         if self.rule not in RULES:
             raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(RULES)})")
         self.max_age = max_age
+        self._check_graphs(spec_file, graphs)
         opts = ort.SessionOptions()
         opts.intra_op_num_threads, opts.inter_op_num_threads = int(threads), 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
@@ -111,6 +125,31 @@ class RobotRuntime:
                                                            providers=["CPUExecutionProvider"])
             except Exception as e:  # onnxruntime's own error types for a missing or damaged graph
                 raise InputError(f"{self.directory / name}: not a loadable ONNX graph ({type(e).__name__})") from None
+        sizes = {"perception z": (self.sessions["perception"].get_outputs()[0].shape[-1], self.z_dim),
+                 "encoder tokens": (self.sessions["encoder"].get_inputs()[0].shape[-1], self.token_dim)}
+        for what, (graph, spec_size) in sizes.items():
+            if isinstance(graph, int) and graph != spec_size:
+                raise InputError(f"{spec_file}: says {spec_size} for the {what} size, its graph has {graph} "
+                                 "(graphs and runtime.json of different exports)")
+
+    def _check_graphs(self, spec_file: Path, graphs: dict[str, str]) -> None:
+        """Each graph's sha256 against the one ``runtime.json`` records (a one-line error naming the file)."""
+        digests = self.spec.get("graph_sha256")
+        if not isinstance(digests, dict) or set(digests) != set(graphs):
+            raise InputError(f"{spec_file}: no sha256 of each graph (graph_sha256); export again with madp export")
+        for role, name in graphs.items():
+            path = self.directory / name
+            try:
+                h = hashlib.sha256()
+                with open(path, "rb") as f:
+                    for chunk in iter(lambda: f.read(1 << 20), b""):
+                        h.update(chunk)
+                digest = h.hexdigest()
+            except OSError as e:
+                raise InputError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
+            if digest != digests[role]:
+                raise InputError(f"{path}: its sha256 differs from the one {spec_file.name} records "
+                                 "(an interrupted or mixed export); export again with madp export --overwrite")
 
     # ------------------------------------------------------------------------------------ helpers
     def frame_of(self, seed: int, step: int) -> int:
@@ -143,6 +182,7 @@ class RobotRuntime:
     def message(self, robot_id: int, step: int, observation: np.ndarray, position_m: np.ndarray,
                 neighbours_m: np.ndarray, seed: int) -> Message:
         """What robot ``robot_id`` broadcasts at ``step``: its position and token (:meth:`token`)."""
+        check_own(observation, position_m)
         tok = self.token(observation, position_m, neighbours_m, self.frame_of(seed, step))
         return Message(int(robot_id), int(step), np.asarray(position_m, np.float64).copy(), tok)
 
@@ -180,14 +220,16 @@ class RobotRuntime:
         the inbox); ``noise(ids) -> [K, T, 2]``: the starting noise of the neighbourhood's robots
         (default :func:`robot_noise`); ``own``: its message of this step when already computed by
         :meth:`message` (else computed here from the inbox's positions)."""
+        check_own(observation, position_m)
         g = self.frame_of(seed, step)
         own_f = transform_points(np.asarray(position_m, np.float32), g, self.world_size_m)
 
         def within(pos: np.ndarray) -> np.ndarray:
             return self._in_range(own_f, transform_points(pos.astype(np.float32), g, self.world_size_m))
 
+        same = None if self.frame != "d4" else (lambda sent: self.frame_of(seed, sent) == g)
         kept, counts = read_inbox(inbox, robot_id, step, position_m, self.token_dim, self.radius_m, within,
-                                  self.max_age)
+                                  self.max_age, same)
         nbr_m = np.array([p for _, p, _ in kept], np.float64).reshape(-1, 2)
         if own is None:
             own = Message(int(robot_id), int(step), np.asarray(position_m, np.float64).copy(),

@@ -106,3 +106,51 @@ def test_lpac_reads_of_its_neighbours_only_what_they_sent():
     rest = np.arange(len(u)) != j
     assert np.abs(v[j] - u[j]).max() > 1e-4
     np.testing.assert_allclose(v[rest], u[rest], rtol=0, atol=1e-6)
+
+
+def test_a_late_token_is_used_only_in_the_frame_it_was_computed_in():
+    """With every message one step late, a robot's MADP action ignores the tokens its neighbours sent at
+    t − 1 when the frame of t − 1 differs from t's (d4: a token is computed in its own step's frame):
+    changing those tokens changes nothing. At a step whose frame equals the last one's it uses them."""
+    from madp.robot.frame import frame_element
+
+    ctrl = make_controller("madp")
+    env = CoverageEnv(_scenario(31), network=NetworkSettings(delay_steps=1))
+    gen = noise_generator(31)
+    checked = set()
+    while len(checked) < 2 and env.steps < 40:
+        t = env.steps
+        same = t > 1 and frame_element(31, t - 1) == frame_element(31, t)
+        if t > 1 and same not in checked:
+            other = copy.deepcopy(env)
+            ch = other.network._channels["token"]
+            ch.payload[(t - 1) % other.network.ring, :, 2:] += 3.0  # the tokens sent at t − 1, changed
+            g1, g2 = copy.deepcopy(gen), copy.deepcopy(gen)
+            u, v = ctrl.act_batch([env], [g1])[0], ctrl.act_batch([other], [g2])[0]
+            if same:
+                assert np.abs(v - u).max() > 1e-4
+            else:
+                np.testing.assert_array_equal(v, u)
+            checked.add(same)
+        env.step(ctrl.act_batch([env], [gen])[0])
+    assert checked == {True, False}
+
+
+def test_the_runtime_drops_a_late_token_of_another_frame(tmp_path):
+    from madp.robot import RobotRuntime
+    from madp.robot.frame import frame_element
+    from madp.sim.network import Message
+    from tests.robot.robot_testutils import export_tiny
+
+    from madp.policies import SamplingSettings
+
+    export_tiny(tmp_path, SamplingSettings.of(select="none"))
+    rt = RobotRuntime(tmp_path, max_age=1)
+    seed = 5
+    steps = [t for t in range(1, 40) if frame_element(seed, t - 1) != frame_element(seed, t)]
+    same = [t for t in range(1, 40) if frame_element(seed, t - 1) == frame_element(seed, t)]
+    obs, pos = np.zeros((4, 32, 32), np.float32), np.array([500.0, 500.0])
+    for t, expect in ((steps[0], "other_frame"), (same[0], "accepted")):
+        late = Message(1, t - 1, pos + 10.0, np.zeros(rt.token_dim, np.float32))
+        counts = rt.step(0, t, obs, pos, [late], seed).counts.as_dict()
+        assert counts[expect] == 1, counts

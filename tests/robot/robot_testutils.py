@@ -6,8 +6,7 @@ from pathlib import Path
 
 import torch
 
-from madp.export.onnx import export_graphs, runtime_spec
-from madp.io.atomic import write_json_atomic
+from madp.export.onnx import export_graphs, runtime_spec, write_runtime
 from madp.models import MADP
 from madp.policies import SamplingSettings
 from madp.sim import SimParams
@@ -20,6 +19,5 @@ def export_tiny(out: Path, sampling: SamplingSettings | None = None) -> MADP:
     model = MADP(tiny_madp_config()).eval()
     model.set_action_stats(torch.tensor([0.1, -0.2]), torch.tensor([2.0, 1.5]))
     out.mkdir(parents=True, exist_ok=True)
-    export_graphs(model, out)
-    write_json_atomic(out / "runtime.json", runtime_spec(model, {}, "0" * 64, sampling or SamplingSettings(), SimParams()))
+    write_runtime(out, runtime_spec(model, {}, "0" * 64, sampling or SamplingSettings(), SimParams()), export_graphs(model, out))
     return model
