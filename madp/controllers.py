@@ -48,7 +48,7 @@ class ControllerInfo:
     ``kind``: :data:`CLASSICAL_KIND`, or the checkpoint kind a learned controller loads.
     ``display``: its name in tables and plot legends; ``description``: its name in prose (the reports'
     results); ``color``: its colour in plots. ``paper``: the controller of the paper whose numbers it
-    is compared with (SPEC §5), or None. ``mode``: MADP's execution (``"decentralized"`` /
+    is compared with, or None. ``mode``: MADP's execution (``"decentralized"`` /
     ``"centralized"``). ``default``: evaluated when ``madp eval`` is not given ``--controllers``.
     ``factory``: ``"module:Class"`` that builds it. ``oracle``: it sees what a deployed swarm cannot (the
     clairvoyant expert's whole map): shown in every table, never counted as a city's best controller.
@@ -96,7 +96,7 @@ CLASSICAL: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if not c.le
 LEARNED: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.learned)
 #: What ``madp eval`` runs without ``--controllers`` (those of them that have a checkpoint).
 DEFAULT: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.default)
-#: The controllers MADP is compared with in the paper (SPEC §5: the ``scale`` suite's improvement matrices).
+#: The controllers MADP is compared with in the paper (the ``scale`` suite's improvement matrices).
 BASELINES: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.paper and not c.samples)
 #: The controllers that sample (MADP, decentralized and centralized-masked).
 SAMPLING: tuple[str, ...] = tuple(n for n, c in CONTROLLERS.items() if c.samples)

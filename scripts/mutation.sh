@@ -12,8 +12,7 @@
 #
 # Environment: MUTATION_ONLY / MUTATION_TESTS (space-separated) override only_mutate and the test
 # selection; MUTATION_JOBS parallel mutants (default: the number of CPUs); MUTATION_OUT (default
-# runs/mutation); MUTATION_RESUME=1 keeps the previous work/ (mutmut re-tests only what changed);
-# MADP_SHARED the reference data (default ../shared beside the checkout).
+# runs/mutation); MUTATION_RESUME=1 keeps the previous work/ (mutmut re-tests only what changed).
 #
 # Score = (killed + timeout) / (all mutants - skipped), as mutmut's badge computes it. Survivors
 # still need a human: some are equivalent (the mutated code computes the same thing); list those,
@@ -78,11 +77,6 @@ print("mutating:", " ".join(cfg["only_mutate"]))
 print("tests:   ", " ".join(cfg["pytest_add_cli_args_test_selection"]))
 EOF
 
-if [[ -z "${MADP_SHARED:-}" && -d "$ROOT/../shared" ]]; then
-    MADP_SHARED=$(cd "$ROOT/../shared" && pwd)  # the tests find ../shared from their own copy otherwise
-fi
-export MADP_SHARED="${MADP_SHARED:-}"
-[[ -n "$MADP_SHARED" ]] || unset MADP_SHARED
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 
 cd "$WORK"

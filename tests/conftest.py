@@ -1,10 +1,10 @@
-"""Shared test fixtures: where the reference data beside the repository lives.
+"""Shared test fixtures, and where the reference data lives.
 
-The reference vectors and city files live outside the repository, in ``../shared`` (or wherever
-``MADP_SHARED`` points). Locally, tests that need them skip when they are absent; in CI (the
-``CI`` environment variable set, as every CI service does) they fail instead, naming the missing
-directory, so a green CI run always includes the reference comparisons. Use the ``vectors_dir`` /
-``cities_dir`` fixtures (or :func:`require_shared`), never a path of your own.
+The reference data ships inside the repository, so a clone anywhere runs every test: the Coverage
+Control Library's reference vectors in ``tests/data/vectors`` (``tests/data/README.md`` says how they
+were made) and the 40 cities' traffic-signal files that madp itself ships
+(``madp/eval/data/cities``). Use the ``vectors_dir`` / ``cities_dir`` fixtures (or the ``VECTORS`` /
+``CITIES`` paths), never a path of your own; a missing directory fails the test that needs it, naming it.
 """
 
 import contextlib
@@ -20,9 +20,9 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("MADP_SHARED", REPO.parent / "shared"))
-VECTORS = SHARED / "vectors"
-CITIES = SHARED / "cities"
+DATA = REPO / "tests" / "data"
+VECTORS = DATA / "vectors"
+CITIES = REPO / "madp" / "eval" / "data" / "cities"  # madp.eval.suites.default_cities_dir()
 
 
 @contextlib.contextmanager
@@ -44,21 +44,11 @@ def in_ci() -> bool:
     return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
 
 
-def require_shared(path: Path, what: str) -> Path:
-    """``path`` if it is a directory; otherwise skip the test, or fail it when running in CI."""
-    if path.is_dir():
-        return path
-    msg = f"{what} not found: directory {path} is missing (put the shared data at {REPO.parent / 'shared'} or set MADP_SHARED)"
-    if in_ci():
-        pytest.fail(f"{msg}; CI must run the reference tests, not skip them", pytrace=False)
-    pytest.skip(msg)
-
-
-def shared_params(paths: list, placeholder: str) -> list:
-    """Parameters for a test parametrized over shared files: ``paths``, or one placeholder when the
-    directory is missing, so the test is still collected and its fixture can skip or fail (an empty
-    parameter list would always skip, CI or not)."""
-    return list(paths) or [placeholder]
+def require_dir(path: Path, what: str) -> Path:
+    """``path`` if it is a directory; otherwise fail the test, naming it (the data ships with the repository)."""
+    if not path.is_dir():
+        pytest.fail(f"{what} not found: directory {path} is missing from this checkout", pytrace=False)
+    return path
 
 
 def pytest_collection_modifyitems(config, items):
@@ -80,12 +70,12 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(scope="session")
 def vectors_dir() -> Path:
-    return require_shared(VECTORS, "reference vectors")
+    return require_dir(VECTORS, "reference vectors")
 
 
 @pytest.fixture(scope="session")
 def cities_dir() -> Path:
-    return require_shared(CITIES, "city files")
+    return require_dir(CITIES, "city files")
 
 
 def run_script(script: Path, *args, timeout: float = 600):

@@ -117,9 +117,11 @@ def test_the_command_line_check_finds_what_does_not_exist():
            "madp evaluate --suite x && .venv/bin/madp eval compare a b --baseline a\n" \
            "python -m madp.cli dataset\n```\n"
     found = [madp_invocation(w) for w in shell_commands(text)]
+    commands = sorted(typer.main.get_command(app).commands)
+    assert {"datagen", "dataset", "eval", "train"} <= set(commands)
     assert [check_command_line(a) for a in found] == [
         ["madp eval: no option --no-such-option"],
-        ["madp: expected one of ['bench', 'datagen', 'dataset', 'eval', 'export', 'rollout', 'scenario', 'train'], got ['evaluate']"],
+        [f"madp: expected one of {commands}, got ['evaluate']"],
         [],
         ["madp dataset: expected one of ['convert', 'info', 'merge', 'verify'], got []"],
     ]
@@ -161,3 +163,75 @@ def test_no_page_source_or_test_names_a_work_item():
     hits = [f"{p.relative_to(ROOT)}:{i + 1}" for p in files
             for i, line in enumerate(p.read_text(encoding="utf-8", errors="replace").splitlines()) if pattern.search(line)]
     assert not hits, hits
+
+
+# --- what a reader can follow ------------------------------------------------------------------------
+
+#: Words that point at this project's internals, not at anything a reader has: the specification and
+#: notes the project was built from, its tracker, and the machine it was developed on.
+INTERNAL = re.compile(r"\bSPEC\b|design notes|\bthe issue\b|issue ?#?[0-9]+|this 2-core|the 2-core machine|"
+                      r"\.\./shared|MADP_SHARED", re.I)
+#: A file of the repository named in a page: a path under one of its folders, or a script's bare name.
+FILE_NAME = re.compile(r"(?<![\w./\"-])((?:\.ci|scripts|tests|madp|docs|robot)/[\w./-]*\w|[\w-]+\.(?:py|sh))(?![\w/*-])")
+
+
+def tracked_files() -> set[str]:
+    files = {str(p.relative_to(ROOT)) for p in ROOT.rglob("*") if ".venv" not in p.parts and ".git" not in p.parts}
+    return files | {str(Path(f).name) for f in files}
+
+
+def dead_file_names(text: str, page: Path, files: set[str]) -> list[str]:
+    """The repository paths and script names ``text`` (of ``page``) names that do not exist: paths are
+    taken from the repository's root or the page's folder; a bare ``NAME.py``/``NAME.sh`` anywhere."""
+    dead = []
+    earlier = set(re.findall(r"git show [0-9a-f]{7,40}:(?:\S*/)?([\w.-]+)", text))  # a file git brings back
+    text = re.sub(r"git show [0-9a-f]{7,40}:\S+", "", text)
+    for m in FILE_NAME.finditer(text):
+        name = m.group(1).rstrip(".")
+        if "*" in name or "<" in name or "…" in name or re.search(r"-v\d+$", name):  # a pattern; a Gymnasium id
+            continue
+        here = str((page.parent / name).resolve().relative_to(ROOT)) if (page.parent / name).resolve().is_relative_to(ROOT) else ""
+        if name not in files and here not in files and name not in earlier:
+            dead.append(name)
+    return dead
+
+
+def test_no_page_names_what_a_reader_cannot_follow():
+    """No page points at the project's internals (its specification, its tracker, its machine)."""
+    hits = [f"{p.relative_to(ROOT)}:{i + 1}: {m.group()}" for p in PAGES
+            for i, line in enumerate(p.read_text(encoding="utf-8").splitlines()) if (m := INTERNAL.search(line))]
+    assert not hits, hits
+
+
+def test_every_file_a_page_names_exists():
+    files = tracked_files()
+    dead = [f"{p.relative_to(ROOT)}: {name}" for p in PAGES for name in dead_file_names(p.read_text(encoding="utf-8"), p, files)]
+    assert not dead, dead
+
+
+def test_the_name_checks_find_what_does_not_exist():
+    files = {"scripts/quickstart.sh", "quickstart.sh", "docs/guides/gpu.md", "gpu.md"}
+    text = "Run `scripts/quickstart.sh`, then `python results_table.py`; see [a GPU](gpu.md) and `tests/gone.py`."
+    assert dead_file_names(text, ROOT / "docs" / "guides" / "x.md", files) == ["results_table.py", "tests/gone.py"]
+    work_item = "issue" + " 12"  # spelt apart: this file is checked for the words too
+    assert [m.group() for line in ("SPEC §5 says", f"see {work_item}", "the EnvSpec of a suite")
+            if (m := INTERNAL.search(line))] == ["SPEC", work_item]
+
+
+GUIDES = sorted((DOCS / "guides").glob("*.md"))
+
+
+@pytest.mark.parametrize("guide", GUIDES, ids=lambda p: p.name)
+def test_every_guide_opens_with_a_runnable_block_and_holds_no_history(guide):
+    """A guide is a how-to: its title, at most one paragraph, then a bash or python block; then H2
+    sections; no dates (what changed when belongs to the reports and CHANGELOG.md)."""
+    text = guide.read_text(encoding="utf-8")
+    lines = text.splitlines()
+    assert lines[0].startswith("# "), "a guide starts with its title"
+    first = next(i for i, line in enumerate(lines) if line.startswith("```"))
+    before = "\n".join(lines[1:first]).strip()
+    assert lines[first].strip() in ("```bash", "```python"), f"{guide.name}: its first block is {lines[first]!r}"
+    assert before.count("\n\n") == 0 and not before.startswith("#"), f"{guide.name}: more than a paragraph before its first block"
+    assert any(line.startswith("## ") for line in lines), f"{guide.name}: no H2 section"
+    dates = [d for d in re.findall(r"\b20\d\d-\d\d-\d\d\b", re.sub(r"\]\([^)]*\)", "]", text))]
+    assert not dates, f"{guide.name}: dated history {dates}; it belongs to a report or CHANGELOG.md"

@@ -1,6 +1,6 @@
 """City importer: traffic-signal locations -> features of a coverage scenario.
 
-The paper's real-world suite (SPEC §5, ``cities/README.md``) builds one scenario per city: a
+The paper's real-world suite (``cities/README.md``) builds one scenario per city: a
 1024 m x 1024 m neighbourhood with one Gaussian feature of the importance density function at every
 traffic signal inside it. This module turns a file of signal locations into such a scenario:
 

@@ -32,7 +32,7 @@ import numpy as np
 
 __all__ = ["WGS84_A", "WGS84_F", "WORLD_SIDE_M", "find_best_square", "project_local", "unproject_local"]
 
-#: Side of the coverage world in metres (SPEC §2).
+#: Side of the coverage world in metres (the paper's world).
 WORLD_SIDE_M = 1024.0
 #: WGS84 semi-major axis (m) and flattening.
 WGS84_A = 6378137.0

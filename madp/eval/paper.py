@@ -1,4 +1,4 @@
-"""The paper's numbers (SPEC §5): what an evaluation's tables put beside ours."""
+"""The paper's numbers: what an evaluation's tables put beside ours."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ from madp.controllers import CONTROLLERS
 
 __all__ = ["PAPER_CONTROLLERS", "PAPER_RESULTS", "paper_results"]
 
-#: Controllers the paper reports (SPEC §5), in the order of the paper column (the registry's ``paper``).
+#: Controllers the paper reports, in the order of the paper column (the registry's ``paper``).
 PAPER_CONTROLLERS: tuple[str, ...] = tuple(dict.fromkeys(c.paper for c in CONTROLLERS.values() if c.paper))
 
-#: The paper's normalised cost after 600 steps (SPEC §5). ``PAPER_RESULTS[suite]`` maps a row of the
+#: The paper's normalised cost after 600 steps. ``PAPER_RESULTS[suite]`` maps a row of the
 #: Markdown pivot (a group name, or ``"all"`` for the whole suite) to ``{controller: value}``;
 #: ``lpac`` is the paper's LPAC-K3. The ``uniform`` and ``cities`` numbers are suite means
 #: (row ``all``); the ``launch`` numbers are per launch group. The launch suite's ``uniform`` group

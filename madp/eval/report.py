@@ -1,7 +1,7 @@
 """Evaluation report: summary statistics, Markdown/JSON tables and PNG plots of one suite run.
 
 The evaluation runner writes two Parquet tables into a suite directory ``runs/eval/<suite>/``
-(SPEC §5):
+(the columns below):
 
 * ``curves.parquet``: one row per (group, env, controller, step) with the normalised coverage cost
   ``cost = J(t)/J(0)``;
@@ -16,7 +16,7 @@ The evaluation runner writes two Parquet tables into a suite directory ``runs/ev
   median, std, mean step ms) plus metadata (row counts, steps, the paper's numbers, files written).
   Not-a-number values (the standard error of a single environment) are written as ``null``.
 * ``summary.md``: :func:`madp.eval.tables.markdown_table` (a pivot with rows = groups + ``all``,
-  columns = controllers, cells ``mean ± SE [lo, hi]``, and a paper column where SPEC §5 has a number,
+  columns = controllers, cells ``mean ± SE [lo, hi]``, and a paper column where the paper has a number,
   :mod:`madp.eval.paper`; a second table with the mean wall time per control step; for the ``scale``
   suite the relative-improvement matrices) followed by links to the plots.
 * PNG plots (:mod:`madp.eval.plots`): ``cost_<group-slug>.png`` per group (mean cost vs step per

@@ -1,4 +1,4 @@
-"""Evaluation suites: named, documented, seeded sets of environments (SPEC §5).
+"""Evaluation suites: named, documented, seeded sets of environments (the paper's suites and madp's own).
 
 | suite   | groups                                          | environments                          |
 |---------|-------------------------------------------------|---------------------------------------|

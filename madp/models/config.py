@@ -4,7 +4,7 @@ Two presets exist for each model:
 
 ``paper``
     The architecture of the MADP paper (§III) and of the Coverage Control Library's LPAC-K3, as
-    pinned down in SPEC §4. Meant for a GPU.
+    the configurations below pin them down. Meant for a GPU.
 
 ``cpu``
     A smaller MADP that keeps every architectural idea (per-robot CNN, spatial transformer with
@@ -196,7 +196,7 @@ class LPACConfig:
 def madp_config(preset: str = "paper", **overrides: Any) -> MADPConfig:
     """MADP config for a named preset, with optional field overrides.
 
-    ``paper`` (SPEC §4, paper §III): d_model = 8 heads x 32 = 256, 8 encoder + 8 decoder layers,
+    ``paper`` (paper §III): d_model = 8 heads x 32 = 256, 8 encoder + 8 decoder layers,
     pre-norm, LeakyReLU MLP (4x), RoPE (tau = 1024 m) in the first layer, r_att = 256 m. The paper
     only says "a three-layer CNN produces z_i in R^32"; the paper's authors built on the Coverage
     Control Library, so the perception reuses that library's CNN backbone: 3 x (Conv 3x3 without
@@ -244,7 +244,7 @@ def madp_config(preset: str = "paper", **overrides: Any) -> MADPConfig:
 def lpac_config(preset: str = "paper", **overrides: Any) -> LPACConfig:
     """LPAC-K3 config for a named preset, with optional field overrides.
 
-    ``paper``: the library's LPAC-K3 (SPEC §4): CNN 3 x (Conv 3x3 no padding, 32 ch, BatchNorm,
+    ``paper``: the library's LPAC-K3: CNN 3 x (Conv 3x3 no padding, 32 ch, BatchNorm,
     LeakyReLU), flatten (32 x 26 x 26), Linear -> 32 (+ LeakyReLU as in the library); concat
     normalised position -> 34; 5 x TAGConv(K=3, 256) with ReLU; torch_geometric MLP [256, 32, 32]
     (BatchNorm, ReLU, plain last) and Linear 32 -> 2.

@@ -1,6 +1,6 @@
 """The simulator and controllers against the Coverage Control Library's reference vectors.
 
-Tolerances (SPEC §6): the library computes its map in float32 as differences of erfc products, so
+Tolerances (``tests/data/README.md``): the library computes its map in float32 as differences of erfc products, so
 each cell carries up to ~2e-3 absolute noise against our exact float64 map. Everything computed on
 *our* map therefore inherits that noise (J and masses ~1e-3 relative; centroids, actions and
 positions to millimetres). Given the library's *own* map (``world_idf`` of seed 1000) the same code
@@ -15,10 +15,9 @@ import pytest
 from madp.sim import (ClairvoyantCVT, ColumnPrefix, CoverageEnv, DecentralizedCVT, Scenario, SimParams,
                       coverage_cost, importance_map, rollout, voronoi_sums)
 
-from tests.conftest import VECTORS, shared_params
+from tests.conftest import VECTORS
 
-# Without the vectors one placeholder case remains; its vectors_dir fixture skips it (fails it in CI).
-TAGS = shared_params(sorted(p.stem for p in VECTORS.glob("*.npz")) if VECTORS.is_dir() else [], "vectors-missing")
+TAGS = sorted(p.stem for p in VECTORS.glob("*.npz"))  # test_vectors_present fails when there are none
 
 
 def load(tag):
