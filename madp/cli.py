@@ -20,8 +20,6 @@ import typer
 
 from madp.cli_main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
-from madp.errors import SettingError
-from madp.io.atomic import write_json_atomic
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
@@ -48,48 +46,14 @@ def rollout(
     candidates: Optional[int] = CANDIDATES,
     network: Optional[str] = typer.Option(None, help="A network between the robots: a group of the faults suite (ideal, loss_30, delay_1s, fail_25, noise_5m, ...) or NAME=VALUE items, e.g. loss=0.3,delay_steps=5,max_age_steps=10,missing=keep,fail_fraction=0.25,fail_step=200,position_noise_m=5,seed=0 (default: none, every robot reads the true state)."),
     record: Optional[Path] = typer.Option(None, help="Also record the rollout here (see --record-format)."),
-    record_format: str = typer.Option("foxglove", help="--record's format: foxglove (MCAP with Foxglove schemas) | ros2 (a rosbag2 MCAP file: geometry_msgs/Twist on /robot_I/cmd_vel, poses, MADP's tokens; docs/guides/export.md)."),
+    record_format: str = typer.Option("foxglove", help="--record's format: foxglove (MCAP with Foxglove schemas) | ros2 (a rosbag2 MCAP file: geometry_msgs/TwistStamped on /robot_I/cmd_vel, PoseStamped on /robot_I/pose, MADP's tokens, the scenario; madp dataset import reads it back; docs/guides/swarm.md)."),
+    runtime: str = typer.Option("torch", help="How MADP (decentralized) runs: torch (the PyTorch policy) | onnx (every robot through the files of madp export and the torch-free robot runtime, each robot's starting noise its own, as a robot process draws it: the one-process reference of madp swarm; docs/guides/export.md)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
-    from madp.controllers import controller_info, make_controller
-    from madp.policies import SamplingSettings
-    from madp.policies.device import resolve_device
-    from madp.sim import CoverageEnv, Scenario, rollout as run
-    from madp.video import Frames, check_video_path
+    from madp.cli_rollout import run_rollout
 
-    learned = controller_info(controller).learned  # an unknown name is refused before anything is read
-    if checkpoint is not None and not learned:
-        raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
-    device = resolve_device(device)  # checked, like the video path, before anything is read or run
-    sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
-    frames = [Frames(check_video_path(video), steps)] if video is not None else []
-    from madp.eval.recorders import RECORD_FORMATS, recorder  # the format is checked before anything runs
-
-    if record_format not in RECORD_FORMATS:
-        raise SettingError("record-format", f"expected one of {', '.join(RECORD_FORMATS)}, got {record_format!r}")
-    net = network_settings(network) if network is not None else None
-    sc = Scenario.load(scenario)
-    ctrl = make_controller(controller, checkpoint and str(checkpoint), seed=seed if seed is not None else sc.seed or 0,
-                           sampling=sampling, device=device)
-    env = CoverageEnv(sc, network=net)
-    rec = recorder(record_format, env, ctrl, controller, steps) if record is not None else None
-    result = run(env, ctrl, steps, frames + ([rec] if rec else []))
-    write_json_atomic(out, result.to_json(controller))
-    if rec is not None:
-        typer.echo(f"{record_format} recording: {rec.write(record)}")
-    typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"
-               f" (converged at {result.converged_at}) -> {out}")
-    for f in frames:
-        v = f.write(progress=True)
-        typer.echo(f"video: {v['frames']} frames, {v['width']}x{v['height']}, {v['bytes'] / 1e6:.1f} MB -> {video}")
-
-
-def network_settings(text: str):
-    """``--network``: a faults-suite group's network, or NAME=VALUE items (:meth:`NetworkSettings.parse`)."""
-    from madp.eval.suites import FAULTS
-    from madp.sim.network import NetworkSettings
-
-    return FAULTS[text] if text in FAULTS else NetworkSettings.parse(text)
+    run_rollout(scenario, controller, checkpoint, seed, steps, out, video, device, select, candidates, network, record,
+                record_format, runtime)
 
 
 @app.command()
@@ -284,7 +248,6 @@ def eval_compare_cmd(
 ) -> None:
     """Compare evaluations of one suite on the same environments: each run's mean, the paired difference to the baseline (SE, 95% interval) and wins k/n per controller and group."""
     from madp.eval.compare import compare_runs, load_runs, markdown, write_compare
-
     cmp = compare_runs(load_runs(runs), baseline)
     files = write_compare(cmp, out or Path("runs/compare") / cmp["suite"])
     typer.echo(markdown(cmp))
@@ -299,12 +262,14 @@ def export_cmd(
     frame: str = typer.Option("d4", help="d4 | world (as madp eval --frame)."),
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
+    overwrite: bool = typer.Option(False, help="Replace an earlier export in --out (any other file there makes it refuse)."),
 ) -> None:
     """Write MADP's networks of one robot's step as ONNX graphs (perception, encoder, denoiser) and runtime.json, for the torch-free robot runtime (docs/guides/export.md)."""
     from madp.export.onnx import export_policy
     from madp.policies import SamplingSettings
 
-    spec = export_policy(policy, out, SamplingSettings.of("dpm++", sampling_steps, 0.0, False, frame, select, candidates))
+    spec = export_policy(policy, out, SamplingSettings.of("dpm++", sampling_steps, 0.0, False, frame, select, candidates),
+                         overwrite=overwrite)
     typer.echo(f"{policy} -> {out}: {', '.join(spec['graphs'].values())}, runtime.json ({spec['sampler']['name']} "
                f"S = {spec['sampler']['steps']}, {spec['selection']['rule']} among K = {spec['selection']['candidates']}, "
                f"frame {spec['selection']['frame']}; sha256 {spec['source']['sha256'][:12]})")
@@ -329,13 +294,19 @@ def scenario_import_cmd(
                f"square (centre {src.square_center_latlon[0]:.5f}, {src.square_center_latlon[1]:.5f}) -> {out}")
 
 
-def _add_bench() -> None:
+def _add_commands() -> None:
+    """The commands kept in modules of their own, so this one stays small."""
     from madp.cli_bench import bench_app  # the benchmark commands (madp bench ...)
-
+    from madp.cli_data import dataset_import_cmd  # madp dataset import: a run's log back into data
+    from madp.cli_report import report_cmd  # madp eval report: the documentation's results tables
+    from madp.cli_swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
     app.add_typer(bench_app, name="bench")
+    dataset_app.command("import")(dataset_import_cmd)
+    eval_app.command("report")(report_cmd)
+    app.command("swarm")(swarm_cmd)
 
 
-_add_bench()
+_add_commands()
 
 
 def main(argv: Optional[List[str]] = None) -> None:

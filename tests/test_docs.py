@@ -123,7 +123,7 @@ def test_the_command_line_check_finds_what_does_not_exist():
         ["madp eval: no option --no-such-option"],
         [f"madp: expected one of {commands}, got ['evaluate']"],
         [],
-        ["madp dataset: expected one of ['convert', 'info', 'merge', 'verify'], got []"],
+        ["madp dataset: expected one of ['convert', 'import', 'info', 'merge', 'verify'], got []"],
     ]
 
 

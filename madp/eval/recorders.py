@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from madp.sim.rollout import Actions, Hook, Positions
@@ -40,7 +41,11 @@ class Recorder(Hook):
         if self.fmt == "ros2":
             from madp.robot.ros2 import write_rosbag
 
-            r = write_rosbag(path, pos, act, dt, self.messages or None)
+            sc = self.env.scenario
+            seed = getattr(self.controller, "seed", None)
+            meta = {"scenario": json.dumps(sc.to_dict()), "seed": (sc.seed or 0) if seed is None else seed,
+                    "controller": self.name}
+            r = write_rosbag(path, pos, act, dt, self.messages or None, meta)
             return f"{r['messages']} messages, {r['robots']} robots' cmd_vel -> {path}"
         from .record import write_rollout_mcap
 

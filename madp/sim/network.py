@@ -20,7 +20,8 @@ the environment (:class:`madp.sim.CoverageEnv` ``network=``), so every controlle
   ``missing="drop"`` holds only what arrived at this step. A robot cannot tell a lost message from
   a sender that left its range: a kept message stays until it is too old either way;
 * **failures**: ``fail_fraction`` of the robots (drawn from the seed) stop at step ``fail_step``:
-  they no longer move, sense or send, and the coverage cost counts only the survivors;
+  they no longer move, sense or send, and the coverage cost counts only the survivors
+  (:meth:`Network.fail` stops one more robot from a step on: a robot process that died);
 * **position noise**: each robot's estimate of its own position is the true one plus Gaussian noise
   of ``position_noise_m`` per axis, drawn afresh at every step; it is what the robot uses (its
   window, its boundary, its neighbours' offsets, its goal) and what it reports. The sensor's
@@ -162,6 +163,7 @@ class _Channel:
     def __init__(self, ring: int, n: int, width: int):
         self.payload = np.zeros((ring, n, width))
         self.sent = np.full(ring, -1, dtype=np.int64)  # the step each ring slot holds
+        self.senders = np.ones((ring, n), dtype=bool)  # which robots sent in each ring slot
         self.stamps = np.full((n, n), -1, dtype=np.int64)
         self.processed = -1  # arrivals are applied up to this step
         self.links = np.zeros((n, n), dtype=np.int8)
@@ -181,7 +183,8 @@ class Network:
         k = int(round(settings.fail_fraction * n))
         failed = np.zeros(n, dtype=bool)
         failed[np.random.default_rng([self.seed, 0xFA11]).permutation(n)[:k]] = True
-        self.failed = failed
+        self.failed = failed  # [N] bool: the robots that stop at some step
+        self._stops_at = np.where(failed, settings.fail_step, np.iinfo(np.int64).max)  # [N]: the step each stops
         self._true = np.zeros((self.ring, n, 2))
         self._true_step = np.full(self.ring, -1, dtype=np.int64)
         self._channels: dict[str, _Channel] = {}
@@ -189,9 +192,13 @@ class Network:
     # --- the robots ---------------------------------------------------------------------------------
     def alive(self, step: int) -> np.ndarray:
         """[N] bool: the robots still running at ``step``."""
-        if step >= self.settings.fail_step:
-            return ~self.failed
-        return np.ones(self.num_robots, dtype=bool)
+        return step < self._stops_at
+
+    def fail(self, robot: int, step: int) -> None:
+        """Robot ``robot`` stops at ``step`` (or at its earlier failure): from then on it neither moves nor
+        sends, and what it holds is dropped, as a robot of ``fail_fraction``."""
+        self.failed[robot] = True
+        self._stops_at[robot] = min(int(self._stops_at[robot]), int(step))
 
     def estimates(self, step: int, true_m: np.ndarray) -> np.ndarray:
         """[N, 2]: each robot's estimate of its own position at ``step``: ``true_m`` plus the noise, kept
@@ -224,9 +231,11 @@ class Network:
         rng = np.random.default_rng([self.seed, int(step), zlib.crc32(channel.encode())])
         return rng.random((n, n)) < self.settings.loss
 
-    def exchange(self, channel: str, step: int, payload: np.ndarray) -> Received:
+    def exchange(self, channel: str, step: int, payload: np.ndarray, senders: np.ndarray | None = None) -> Received:
         """Every robot sends ``payload [N, F]`` on ``channel`` at ``step`` (failed robots send
-        nothing); returns what each robot holds on that channel after this step's arrivals."""
+        nothing; with ``senders [N]`` bool, only those robots send: the others' rows are ignored);
+        returns what each robot holds on that channel after this step's arrivals. Which links lose a
+        message does not depend on who sends."""
         payload = np.asarray(payload, dtype=np.float64)
         n, s = self.num_robots, self.settings
         ch = self._channels.get(channel)
@@ -234,11 +243,13 @@ class Network:
             ch = self._channels[channel] = _Channel(self.ring, n, payload.shape[1])
         slot = step % self.ring
         ch.payload[slot], ch.sent[slot] = payload, step
+        ch.senders[slot] = True if senders is None else np.asarray(senders, dtype=bool)
         for t in range(ch.processed + 1, step + 1):  # every step's arrivals, in order
             ch.links[:] = LINK_OUT_OF_RANGE
             sent = t - s.delay_steps
             if sent >= 0 and ch.sent[sent % self.ring] == sent:
-                reach = self.in_range(sent) & self.alive(sent)[None, :] & self.alive(t)[:, None]
+                sending = self.alive(sent) & ch.senders[sent % self.ring]
+                reach = self.in_range(sent) & sending[None, :] & self.alive(t)[:, None]
                 lost = self.lost(channel, sent) & reach
                 arrived = reach & ~lost
                 ch.stamps[arrived] = sent

@@ -1,0 +1,199 @@
+"""Logs back into data: a recorded run (the rosbag2 MCAP file of ``madp swarm`` or of
+``madp rollout --record-format ros2``, which carries its scenario) becomes expert-relabelled samples
+in the dataset format, so a run's log feeds the next training round (``madp dataset import``).
+
+A log is replayed, not trusted: the scenario from its ``madp`` metadata is rebuilt, the commands the
+world applied (``/robot_<i>/cmd_vel``) drive a :class:`madp.sim.CoverageEnv` step by step, and every
+robot's replayed position must match its logged pose (``/robot_<i>/pose``) to within
+:data:`POSE_TOLERANCE_M`: a log that does not replay is refused, naming the robot and the step.
+Every ``record_every``-th state (and the last) becomes a sample: the clairvoyant expert's action U0 at
+that state (the label, as in relabelling datagen), the positions X and the observations O of the
+robots' true state. Each log is one episode; the whole import goes to one split (``train`` by default:
+train on it beside another dataset with ``madp train --data BASE --data IMPORTED``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from madp.data_schema import ActionStatsAccumulator, DataError, Episode, Manifest, SplitInfo, write_shard
+from madp.data_schema.manifest import MANIFEST_FILENAME, SPLITS, sha256_file
+from madp.errors import SettingError
+from madp.io.atomic import write_text_atomic
+from madp.io.lock import locked_dir
+from madp.io.owned import clear_owned, foreign_files
+from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
+
+__all__ = ["POSE_TOLERANCE_M", "RunLog", "import_logs", "log_episode", "read_log"]
+
+#: How far (m) a replayed position may be from the logged pose (the log stores float64 metres).
+POSE_TOLERANCE_M = 1e-6
+#: The import's own state: which logs made which shard (beside the manifest).
+IMPORT_FILE = ".import.json"
+
+
+@dataclass(frozen=True)
+class RunLog:
+    """What a run's log holds: its ``scenario``, ``dt_s``, the commands the world applied
+    ``commands_mps [T, N, 2]`` (step t's in row t) and the poses ``positions_m [T + 1, N, 2]``."""
+
+    path: Path
+    scenario: Scenario
+    dt_s: float
+    commands_mps: np.ndarray
+    positions_m: np.ndarray
+
+
+def _topic_index(topic: str, name: str) -> int | None:
+    """i of ``/robot_<i>/<name>``, else None."""
+    parts = topic.strip("/").split("/")
+    if len(parts) != 2 or parts[1] != name or not parts[0].startswith("robot_"):
+        return None
+    tail = parts[0][len("robot_"):]
+    return int(tail) if tail.isdigit() else None
+
+
+def read_log(path: str | Path) -> RunLog:
+    """The run recorded in rosbag2 MCAP file ``path``. A missing, truncated or foreign file is a
+    one-line :class:`DataError` naming it and what was expected."""
+    from mcap.reader import make_reader
+    from mcap_ros2.reader import read_ros2_messages
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError.at(path, "no such log file (a rosbag2 MCAP file of madp swarm or madp rollout --record-format ros2)")
+    try:
+        with open(path, "rb") as f:
+            meta = {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+        if "madp" not in meta or "scenario" not in meta["madp"]:
+            raise DataError.at(path, "no 'madp' metadata with the scenario: not a log madp recorded")
+        info = meta["madp"]
+        scenario = Scenario.from_dict(json.loads(info["scenario"]), f"{path} (madp metadata)")
+        dt_s = float(info["dt_s"])
+        n, steps = len(scenario.robots_m), int(info["steps"])
+        commands = np.full((steps, n, 2), np.nan)
+        poses = np.full((steps + 1, n, 2), np.nan)
+        for m in read_ros2_messages(str(path)):
+            topic, msg = m.channel.topic, m.ros_msg
+            i = _topic_index(topic, "cmd_vel")
+            if i is not None and i < n:
+                t = _step(msg.header.stamp, dt_s)
+                if 0 <= t < steps:
+                    commands[t, i] = msg.twist.linear.x, msg.twist.linear.y
+                continue
+            i = _topic_index(topic, "pose")
+            if i is not None and i < n:
+                t = _step(msg.header.stamp, dt_s)
+                if 0 <= t <= steps:
+                    poses[t, i] = msg.pose.position.x, msg.pose.position.y
+    except DataError:
+        raise
+    except (json.JSONDecodeError, KeyError, ValueError, TypeError) as e:
+        raise DataError.at(path, f"malformed madp metadata ({type(e).__name__}: {e})") from None
+    except Exception as e:  # the MCAP readers' own errors for a truncated or foreign file
+        raise DataError.corrupt(path, "rosbag2 MCAP", e) from None
+    for name, arr in (("cmd_vel", commands), ("pose", poses)):
+        missing = np.argwhere(np.isnan(arr).any(-1))
+        if len(missing):
+            t, i = (int(v) for v in missing[0])
+            raise DataError.at(path, f"/robot_{i}/{name} has no message for step {t} "
+                               f"(a log of {steps} steps and {n} robots needs one per robot and step)")
+    return RunLog(path, scenario, dt_s, commands, poses)
+
+
+def _step(stamp, dt_s: float) -> int:
+    """The control step of a header stamp ``t · dt_s``."""
+    return int(round((int(stamp.sec) + int(stamp.nanosec) * 1e-9) / dt_s))
+
+
+def log_episode(log: RunLog, episode_id: int, record_every: int = 5) -> Episode:
+    """Replay ``log`` and label every ``record_every``-th state (and the last before the final
+    command) with the clairvoyant expert's action."""
+    env = CoverageEnv(log.scenario)
+    expert = ClairvoyantCVT()
+    steps = len(log.commands_mps)
+    acts, pos, obs, goals, recorded = [], [], [], [], []
+    for t in range(steps):
+        gap = np.abs(env.positions_m - log.positions_m[t]).max(1)
+        if gap.max() > POSE_TOLERANCE_M:
+            i = int(gap.argmax())
+            raise DataError.at(log.path, f"does not replay: robot {i} at step {t} is {gap[i]:.3g} m from its logged "
+                               "pose (the scenario or the applied commands do not match the run)")
+        if t % record_every == 0 or t == steps - 1:
+            acts.append(expert(env).astype(np.float32))
+            goals.append(expert.goals_m.astype(np.float32))
+            pos.append(env.positions_m.astype(np.float32))
+            obs.append(env.observations().astype(np.float16))
+            recorded.append(t)
+        env.step(log.commands_mps[t])
+    seed = log.scenario.seed if log.scenario.seed is not None else 0
+    return Episode(episode_id=episode_id, scenario_seed=int(seed), actions=np.stack(acts), positions=np.stack(pos),
+                   observations=np.stack(obs), steps=np.asarray(recorded, np.int64), world_map=env.world_map_f32,
+                   goals=np.stack(goals))
+
+
+def import_logs(logs: list[str | Path], out: str | Path, fmt: str = "mcap", split: str = "train", record_every: int = 5,
+                overwrite: bool = False) -> Manifest:
+    """Write the samples of ``logs`` (one episode and one shard each, in the order given) as a dataset
+    in ``out`` with its manifest. The directory is locked while it is written; a directory holding
+    files madp did not write is refused, and one madp wrote is replaced only with ``overwrite``."""
+    if fmt not in ("mcap", "parquet"):
+        raise SettingError("format", f"expected mcap or parquet, got {fmt!r}")
+    if split not in SPLITS:
+        raise SettingError("split", f"expected one of {', '.join(SPLITS)}, got {split!r}")
+    if record_every < 1:
+        raise SettingError("record_every", f"expected a positive number of steps, got {record_every}")
+    if not logs:
+        raise SettingError("logs", "expected at least one log file")
+    runs = [read_log(p) for p in logs]  # every log read and checked before anything is written
+    n = {len(r.scenario.robots_m) for r in runs}
+    if len(n) > 1:
+        raise DataError.at(runs[-1].path, f"has {len(runs[-1].scenario.robots_m)} robots where the others have "
+                           f"{len(runs[0].scenario.robots_m)}; import swarms of one size into one dataset")
+    root = Path(out)
+    with locked_dir(root):
+        _prepare(root, overwrite)
+        acc = ActionStatsAccumulator()
+        infos = []
+        for k, run in enumerate(runs):
+            ep = log_episode(run, k, record_every)
+            acc.add(ep.actions)
+            rel = f"{split}/shard-{k:05d}.{fmt}"
+            info = write_shard(root / rel, [ep], fmt)
+            info.file = rel
+            infos.append(info)
+        params = {"imported_logs": [{"file": str(r.path), "sha256": sha256_file(r.path)} for r in runs],
+                  "record_every": record_every, "params": runs[0].scenario.params.to_dict()}
+        splits = {s: SplitInfo(infos if s == split else []) for s in SPLITS}
+        manifest = Manifest(format=fmt, num_robots=n.pop(), params=params, splits=splits,
+                            action_stats=acc.result() if split == "train" else None,
+                            created_by="madp dataset import " + " ".join(str(p) for p in logs) + f" --split {split}")
+        write_text_atomic(root / IMPORT_FILE, json.dumps({"shards": [i.file for i in infos]}) + "\n")
+        manifest.save(root / MANIFEST_FILENAME)
+    return manifest
+
+
+def _owned(root: Path) -> list[str]:
+    """What an earlier import wrote in ``root``: its manifest, its record and the shards it lists."""
+    rec = root / IMPORT_FILE
+    if not rec.is_file():
+        return []
+    try:
+        shards = list(json.loads(rec.read_text())["shards"])
+    except (ValueError, KeyError, TypeError):
+        shards = []
+    return [MANIFEST_FILENAME, IMPORT_FILE, *shards]
+
+
+def _prepare(root: Path, overwrite: bool) -> None:
+    owned = _owned(root)
+    foreign = foreign_files(root, owned)
+    if foreign:
+        raise DataError.at(foreign[0], "not a file madp dataset import wrote; choose an empty --out directory")
+    if owned and not overwrite:
+        raise DataError.at(root, "already holds an imported dataset; pass --overwrite to replace it")
+    clear_owned(root, owned)

@@ -1,0 +1,222 @@
+"""One robot of a swarm as its own process (``madp-robot run``, ``python -m madp.robot run``; ``madp swarm``
+starts one per robot): the robot's :class:`madp.robot.agent.RobotAgent` behind a Zenoh session, speaking
+the records of :mod:`madp.robot.wire`. numpy, onnxruntime and zenoh only (no torch).
+
+``main(["--export", DIR, "--id", I, "--endpoint", "tcp/127.0.0.1:PORT", "--key", RUN])``:
+
+1. it exits as soon as its parent (the world) does (:func:`madp.io.workers.die_with_parent`), loads the
+   exported policy (``--threads`` onnxruntime threads, default 1), opens a Zenoh session (peer mode, no
+   scouting, connected to the world's endpoint only, listening nowhere) and subscribes to its own keys
+   ``madp/RUN/robot/I/in/*`` only;
+2. **startup**: it sends HELLO every 0.2 s until the world's START brings the episode's seed, the
+   scenario's parameters and the oldest message age its runtime uses; it builds its agent, runs one
+   throwaway control step (:func:`warm_up`) and sends READY;
+3. **each control step** k, on the world's STEP packet (its position estimate and its sensor's reading):
+   ``agent.observe`` -> publishes its beacon -> awaits its radio's beacon DELIVER of step k ->
+   ``agent.token`` -> publishes its token -> awaits the token DELIVER of step k -> ``agent.act`` ->
+   publishes its COMMAND for step k. A STEP packet of a later step that arrives while it waits ends
+   step k there (it was too late: the world has moved on) and starts the new one; records of older
+   steps or other phases are ignored, and records that do not decode are dropped;
+4. it exits with status 0 on the world's stop packet, and with status 3 when nothing has come from the
+   world for ``--silence-s`` seconds (default 120).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import queue
+import sys
+from typing import Callable, Sequence
+
+from madp.errors import MadpError, SettingError
+
+from .wire import (Delivery, PHASE_BEACON, PHASE_TOKEN, Start, StepPacket, check_endpoint, check_run_key, decode,
+                   encode_command, encode_hello, encode_ready, encode_send, in_key, out_key, zenoh_config,
+                   HELLO_INTERVAL_S)
+
+__all__ = ["EXIT_SILENT", "RobotLink", "main", "serve", "warm_up"]
+
+#: Exit status of a robot whose world stayed silent for ``--silence-s`` seconds.
+EXIT_SILENT = 3
+#: What a robot sends, by key name (``madp/RUN/robot/I/out/NAME``).
+OUT_NAMES = ("hello", "ready", "beacon", "token", "cmd")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line (madp-robot's error path), not usage + exit
+        raise SettingError("run", f"{self.prog}: {message}")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="madp-robot run", description="One robot process of a swarm (madp swarm starts them).")
+    p.add_argument("--export", required=True, metavar="DIR", help="the directory madp export wrote")
+    p.add_argument("--id", required=True, type=int, metavar="I", help="this robot's id (0 .. N-1)")
+    p.add_argument("--endpoint", required=True, metavar="EP", help="the world's Zenoh endpoint, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--key", required=True, metavar="RUN", help="the run's key (madp/RUN/robot/I/...)")
+    p.add_argument("--threads", type=int, default=1, metavar="T", help="onnxruntime threads (default 1)")
+    p.add_argument("--parent", type=int, default=None, metavar="PID",
+                   help="exit when this process does (default: the parent process)")
+    p.add_argument("--silence-s", type=float, default=120.0, metavar="S",
+                   help="exit (status 3) when the world has sent nothing for S seconds (default 120)")
+    return p
+
+
+class RobotLink:
+    """Robot ``robot``'s Zenoh session: a subscription to its own ``in`` keys, feeding a queue of raw
+    records, and one publisher per ``out`` key (reliable, blocking when congested, sent at once)."""
+
+    def __init__(self, endpoint: str, run_key: str, robot: int):
+        import zenoh
+
+        self.robot = int(robot)
+        self.session = zenoh.open(zenoh_config(connect=endpoint))
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.subscriber = self.session.declare_subscriber(in_key(run_key, self.robot, "*"),
+                                                          lambda sample: self.inbox.put(sample.payload.to_bytes()))
+        self.publishers = {name: self.session.declare_publisher(out_key(run_key, self.robot, name),
+                                                                congestion_control=zenoh.CongestionControl.BLOCK,
+                                                                express=True) for name in OUT_NAMES}
+
+    def send(self, name: str, data: bytes) -> None:
+        self.publishers[name].put(data)
+
+    def receive(self, timeout_s: float):
+        """The next record for this robot that decodes (others are dropped), or None after ``timeout_s``
+        seconds without any."""
+        import time
+
+        end = time.monotonic() + timeout_s
+        while True:
+            try:
+                raw = self.inbox.get(timeout=max(end - time.monotonic(), 0.0))
+            except queue.Empty:
+                return None
+            rec = decode(raw)
+            if rec is not None and getattr(rec, "robot", None) == self.robot:
+                return rec
+
+    def close(self) -> None:
+        try:
+            self.session.close()
+        except Exception:  # the session is gone with the process either way
+            pass
+
+
+def _handshake(link: RobotLink, robot: int, silence_s: float) -> Start | None:
+    """HELLO every HELLO_INTERVAL_S until a START arrives; None after ``silence_s`` seconds of none."""
+    import time
+
+    end = time.monotonic() + silence_s
+    while time.monotonic() < end:
+        link.send("hello", encode_hello(robot, os.getpid()))
+        rec = link.receive(HELLO_INTERVAL_S)
+        if isinstance(rec, Start):
+            return rec
+    return None
+
+
+def _await(receive: Callable[[float], object], step: int, phase: int, silence_s: float):
+    """The DELIVER of ``phase`` of ``step``, or a STEP packet of a later step (or the stop packet) that
+    ends this one, or None after ``silence_s`` seconds without a record."""
+    while True:
+        rec = receive(silence_s)
+        if rec is None:
+            return None
+        if isinstance(rec, StepPacket) and (rec.stop or rec.step > step):
+            return rec
+        if isinstance(rec, Delivery) and rec.step == step and rec.phase == phase:
+            return rec
+
+
+def _control_step(agent, link: RobotLink, packet: StepPacket, silence_s: float, reading_type):
+    """The robot's control step of ``packet``: returns the STEP packet that interrupted it, the packet
+    itself when the world went silent, or None when it sent its command."""
+    robot, k = link.robot, packet.step
+    agent.observe(k, packet.position_m, reading_type(packet.lo_cell, packet.values))
+    link.send("beacon", encode_send(PHASE_BEACON, agent.beacon()))
+    rec = _await(link.receive, k, PHASE_BEACON, silence_s)
+    if not isinstance(rec, Delivery):
+        return rec or packet
+    link.send("token", encode_send(PHASE_TOKEN, agent.token(rec.messages)))
+    rec = _await(link.receive, k, PHASE_TOKEN, silence_s)
+    if not isinstance(rec, Delivery):
+        return rec or packet
+    link.send("cmd", encode_command(robot, k, agent.act(rec.messages).action_mps))
+    return None
+
+
+def serve(agent, link: RobotLink, silence_s: float, sensor_size: int) -> int:
+    """Robot ``link.robot``'s control steps until the stop packet (returns 0) or ``silence_s`` seconds of
+    silence (returns :data:`EXIT_SILENT`). A STEP packet whose reading is not ``sensor_size`` square is
+    dropped."""
+    from madp.sim.robot_maps import SensorReading
+
+    last, packet = -1, None
+    while True:
+        if packet is None:
+            packet = link.receive(silence_s)
+            if packet is None:
+                return EXIT_SILENT
+        if not isinstance(packet, StepPacket) or (not packet.stop and (packet.step <= last
+                                                                       or packet.values.shape != (sensor_size,) * 2)):
+            packet = None  # a delivery of a step it gave up, an old or malformed step packet
+            continue
+        if packet.stop:
+            return 0
+        last = packet.step
+        nxt = _control_step(agent, link, packet, silence_s, SensorReading)
+        if nxt is packet:
+            return EXIT_SILENT
+        packet = nxt
+
+
+def warm_up(agent, params) -> None:
+    """One control step of a throwaway ``agent`` on a blank reading at the world's centre, alone: loads
+    and compiles what a step runs (numba's kernels, onnxruntime's first inferences) before READY, so
+    the first real step is not slower than the others."""
+    import numpy as np
+
+    from madp.sim.robot_maps import SensorReading, robot_cells
+
+    s, centre = params.sensor_size, np.full(2, params.world_size / 2.0)
+    agent.observe(0, centre, SensorReading(robot_cells(centre[None])[0] - s // 2, np.zeros((s, s), np.float32)))
+    agent.token([])
+    agent.act([])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """One robot process (module docstring); returns its exit status."""
+    args = _parser().parse_args(list(sys.argv[1:] if argv is None else argv))
+    from madp.io.workers import die_with_parent
+
+    die_with_parent(args.parent if args.parent is not None else os.getppid())
+    run_key, endpoint = check_run_key(args.key), check_endpoint(args.endpoint)
+    if args.id < 0:
+        raise SettingError("id", f"expected a robot id >= 0, got {args.id}")
+    if args.threads < 1:
+        raise SettingError("threads", f"expected >= 1, got {args.threads}")
+    if not args.silence_s > 0:
+        raise SettingError("silence-s", f"expected a number of seconds > 0, got {args.silence_s}")
+    from madp.sim.params import SimParams
+
+    from .agent import RobotAgent
+    from .runtime import RobotRuntime
+
+    runtime = RobotRuntime(args.export, threads=args.threads)
+    link = RobotLink(endpoint, run_key, args.id)
+    try:
+        start = _handshake(link, args.id, args.silence_s)
+        if start is None:
+            return EXIT_SILENT
+        try:
+            params = SimParams.from_dict(start.params)
+        except (MadpError, TypeError, ValueError) as e:
+            raise MadpError(f"the world's START holds unusable parameters: {e}") from None
+        runtime.max_age = start.max_age
+        agent = RobotAgent(args.id, runtime, params, start.seed, exact_position=start.exact_position)
+        warm_up(RobotAgent(args.id, runtime, params, start.seed), params)
+        link.send("ready", encode_ready(args.id))
+        return serve(agent, link, args.silence_s, params.sensor_size)
+    finally:
+        link.close()

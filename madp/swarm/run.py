@@ -1,0 +1,156 @@
+"""``madp swarm``: one run of a swarm of robot processes (:mod:`madp.swarm.world`) into an output directory.
+
+Everything the user chose is checked before a process starts (the scenario file, the export's
+``runtime.json`` and graphs, the steps, the rate, the output directory), each a one-line error. The
+directory is locked for the run (:func:`madp.io.lock.locked_dir`); it must be empty, or hold an earlier
+``madp swarm`` run that ``overwrite`` replaces (:func:`madp.io.owned.clear_owned`: any other file makes it
+refuse). It receives ``summary.json`` (:func:`run_swarm` says what it holds) and ``swarm.mcap`` (the
+rosbag2 log of :mod:`madp.robot.ros2`), each written atomically.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+from madp.errors import InputError, MadpError, SettingError
+from madp.io.atomic import is_temp, remove_temps, write_json_atomic
+from madp.io.lock import LOCK_FILENAME, locked_dir
+from madp.io.owned import clear_owned
+from madp.sim import Scenario
+from madp.sim.network import NetworkSettings
+
+from .world import BEACON_BY, COMMAND_BY, TOKEN_BY, World
+
+__all__ = ["OWNED", "run_swarm"]
+
+#: The files a swarm run writes in its directory.
+OWNED = ("summary.json", "swarm.mcap")
+#: Seconds between progress lines when the output is not a terminal.
+LINE_EVERY_S = 30.0
+
+
+def _check_out(out: Path, overwrite: bool) -> None:
+    """Refuse an output directory that holds anything but an earlier run (with ``overwrite``) or nothing."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: not a directory; choose another --out")
+    if overwrite:
+        clear_owned(out, OWNED)
+        return
+    present = sorted(p.name for p in out.iterdir() if p.name != LOCK_FILENAME and not is_temp(p))
+    if present:
+        what = "an earlier madp swarm run: --overwrite replaces it" if set(present) <= set(OWNED) else "files madp swarm did not write"
+        raise SettingError("out", f"{out}: not empty ({present[0]}{' ...' if len(present) > 1 else ''}; {what}); "
+                                  "choose another --out")
+
+
+class _Progress:
+    """Steps done, steps/s and J(t)/J(0): a rich bar on a terminal, else a line every LINE_EVERY_S."""
+
+    def __init__(self, total: int, enabled: bool, started: str):
+        self.total, self.enabled, self.tty = total, enabled, enabled and sys.stderr.isatty()
+        self.t0 = self.last = time.perf_counter()
+        if enabled and not self.tty:
+            print(f"swarm 0/{total}: {started}", flush=True)
+        if self.tty:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(TextColumn("swarm"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                                TimeElapsedColumn())
+            self.bar.start()
+            self.task = self.bar.add_task("swarm", total=total, info="")
+
+    def update(self, done: int, cost: float) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        info = f"{done / max(now - self.t0, 1e-9):.2f} steps/s  J/J0 {cost:.4f}"
+        if self.tty:
+            self.bar.update(self.task, completed=done, info=info)
+        elif now - self.last >= LINE_EVERY_S or done == self.total:
+            print(f"swarm {done}/{self.total}: {info}", flush=True)
+            self.last = now
+
+    def close(self) -> None:
+        if self.tty:
+            self.bar.stop()
+            self.tty = False
+
+
+def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | Path,
+              network: NetworkSettings | None = None, rate_hz: float | None = None, overwrite: bool = False,
+              progress: bool = True) -> dict:
+    """Run the scenario's swarm, one robot process per robot with the policy exported to ``export``, for
+    ``steps`` control steps over ``network`` (ideal when None), in lockstep or at ``rate_hz``; write
+    ``out/summary.json`` and ``out/swarm.mcap`` and return the summary: ``final_cost`` (J(T)/J(0)),
+    ``cost`` (J(t)/J(0), t = 0..T), per robot its ``pid``, step latency ``latency_ms`` p50/p99 (from its
+    STEP packet sent to its command received), ``deadline_misses``, ``failed_at_step`` (or null) and its
+    messages sent, delivered and their bytes per channel; the run's settings and timings."""
+    from madp.robot.ros2 import RosbagWriter
+    from madp.robot.runtime import RobotRuntime
+
+    from .bus import WorldBus
+    from .robots import RobotProcesses
+
+    missing = [pkg for mod, pkg in (("zenoh", "eclipse-zenoh"), ("onnxruntime", "onnxruntime"), ("mcap_ros2", "mcap-ros2-support"))
+               if importlib.util.find_spec(mod) is None]
+    if missing:
+        raise MadpError(f"madp swarm needs {', '.join(missing)}, which is not installed (pip install {' '.join(missing)})")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise SettingError("steps", f"expected a whole number of steps >= 1, got {steps!r}")
+    if rate_hz is not None and not (isinstance(rate_hz, (int, float)) and 0 < rate_hz < math.inf):
+        raise SettingError("rate_hz", f"expected a rate in Hz > 0, got {rate_hz!r}")
+    sc, out, net = Scenario.load(scenario), Path(out), network or NetworkSettings()
+    runtime = RobotRuntime(export)  # reads and checks runtime.json and the graphs: a one-line error naming the file
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: not a directory; choose another --out")
+    p, seed = sc.params, sc.seed if sc.seed is not None else 0
+    with locked_dir(out):
+        _check_out(out, overwrite)
+        remove_temps(out)
+        bus = WorldBus(len(sc.robots_m))
+        robots = log = None
+        try:
+            meta = {"scenario": json.dumps(sc.to_dict()), "steps": steps, "dt_s": p.dt_s, "seed": seed,
+                    "controller": "madp", "runtime": "swarm", "network": net.as_dict(), "rate_hz": rate_hz}
+            log = RosbagWriter(out / "swarm.mcap", p.dt_s, meta)
+            world = World(sc, bus, runtime.token_dim, net, rate_hz, log)
+            robots = RobotProcesses(world.n, export, bus.endpoint, bus.run_key)
+            startup_s = world.connect(robots)
+            bar = _Progress(steps, progress, f"{world.n} robot processes connected in {startup_s:.1f} s")
+            try:
+                for k in range(steps):
+                    bar.update(k + 1, world.step(k))
+            finally:
+                bar.close()
+            wall_s = time.perf_counter() - world.t0
+            codes = world.stop(steps)
+            log.close()
+        except BaseException:
+            if log is not None:
+                log.abandon()
+            raise
+        finally:
+            if robots is not None:
+                robots.close()
+            bus.close()
+        spec = runtime.spec
+        summary = {
+            "scenario": str(scenario), "name": sc.name, "seed": seed, "robots_n": world.n, "steps": steps,
+            "mode": "lockstep" if rate_hz is None else "real time", "rate_hz": rate_hz,
+            "deadlines": None if rate_hz is None else {"beacon": BEACON_BY, "token": TOKEN_BY, "command": COMMAND_BY,
+                                                       "period_ms": 1e3 / rate_hz},
+            "network": net.as_dict(), "export": str(export),
+            "policy": {"rule": runtime.rule, "candidates": runtime.candidates, "frame": runtime.frame,
+                       "sampler": spec["sampler"]["name"], "sampling_steps": spec["sampler"]["steps"],
+                       "sha256": spec.get("source", {}).get("sha256")},
+            "final_cost": world.cost[-1], "cost": world.cost,
+            "startup_s": startup_s, "wall_s": wall_s, "steps_per_s": steps / wall_s,
+            **world.summary(codes),
+        }
+        write_json_atomic(out / "summary.json", summary)
+    return summary
