@@ -18,8 +18,8 @@ cat <<'EOF'
 
 What you are looking at (runs/quickstart-eval/uniform/: summary.md above, cost_uniform.png):
   J(100)/J(0): the coverage cost after 100 control steps relative to the start, on 2 environments; lower is better.
-  MADP, LPAC-K3: the checkpoints shipped with madp, trained for hours (docs/reports/results.md: 0.337 and 0.502
-    on the whole uniform suite, 50 environments x 600 steps).
+  MADP, LPAC-K3: the checkpoints shipped with madp, trained for hours (their figures on the whole uniform
+    suite, 50 environments x 600 steps: docs/reports/results.md).
   MADP:quickstart, LPAC-K3:quickstart: trained for 30 steps just now; LPAC-K3 barely moves the swarm, and
     MADP's progress comes mostly from the default choice among its 4 samples (--select explore).
   Clairvoyant: the expert that sees the whole map (an oracle, the floor); DCVT: the classical decentralized baseline.
