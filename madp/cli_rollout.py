@@ -5,7 +5,8 @@ process draws: the one-process reference of a swarm of robot processes)."""
 
 from __future__ import annotations
 
-import importlib.util
+import os
+import tempfile
 from pathlib import Path
 
 import typer
@@ -22,13 +23,19 @@ def network_settings(text: str):
     from madp.eval.suites import FAULTS
     from madp.sim.network import NetworkSettings
 
-    return FAULTS[text] if text in FAULTS else NetworkSettings.parse(text)
+    if text in FAULTS:
+        return FAULTS[text]
+    if "=" not in text:
+        raise SettingError("network", f"expected a group of the faults suite ({', '.join(FAULTS)}) or NAME=VALUE "
+                                      f"items, got {text!r}")
+    return NetworkSettings.parse(text)
 
 
 def check_runtime(runtime: str, controller: str) -> None:
     """Refuse, before anything is read or run, a ``--runtime`` that is not one of :data:`RUNTIMES`,
-    ``onnx`` for a controller other than decentralized MADP, or ``onnx`` without onnxruntime."""
+    ``onnx`` for a controller other than decentralized MADP, or ``onnx`` without madp's ``onnx`` extra."""
     from madp.controllers import controller_info
+    from madp.eval.runner import ONNX_MODULES, check_extra
 
     if runtime not in RUNTIMES:
         raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {runtime!r}")
@@ -36,8 +43,41 @@ def check_runtime(runtime: str, controller: str) -> None:
         info = controller_info(controller)
         if not info.samples or info.mode != "decentralized":
             raise SettingError("runtime", f"onnx runs MADP robot by robot (decentralized), not {controller}")
-        if importlib.util.find_spec("onnxruntime") is None:
-            raise SettingError("runtime", "onnx needs onnxruntime, which is not installed (pip install onnxruntime)")
+        check_extra("runtime", "onnx", "onnx", ONNX_MODULES)
+
+
+def check_record(record_format: str) -> None:
+    """Refuse, before anything runs, a ``--record-format`` that is not one of
+    :data:`madp.eval.recorders.RECORD_FORMATS`, or ``ros2`` without madp's ``ros2`` extra."""
+    from madp.eval.recorders import RECORD_FORMATS
+    from madp.eval.runner import check_extra
+
+    if record_format not in RECORD_FORMATS:
+        raise SettingError("record_format", f"expected one of {', '.join(RECORD_FORMATS)}, got {record_format!r}")
+    if record_format == "ros2":
+        check_extra("record_format", "ros2", "ros2", ("mcap_ros2",))
+
+
+def check_outputs(out: Path, record: Path | None) -> None:
+    """Refuse, before anything runs, an ``--out`` or ``--record`` that cannot take a new file (a
+    directory; a directory that cannot be made or written in), and ``--record`` equal to ``--out`` (the
+    recording would replace the result). Makes their directories; the errors name the user's paths."""
+    if record is not None and Path(os.path.abspath(record)).resolve() == Path(os.path.abspath(out)).resolve():
+        raise SettingError("record", f"{record} is also --out: the recording would replace the result JSON; "
+                                     "choose another path")
+    for setting, path in (("out", out), ("record", record)):
+        if path is None:
+            continue
+        path = Path(path)
+        if path.is_dir() or str(path).endswith(os.sep):
+            raise SettingError(setting, f"{path} is a directory; expected a file name")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=path.parent):
+                pass
+        except OSError as e:
+            raise SettingError(setting, f"{path}: cannot write a file in {path.parent} "
+                                        f"({e.strerror or type(e).__name__})") from None
 
 
 def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: int | None, steps: int, out: Path,
@@ -46,7 +86,7 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
     """``madp rollout`` with its options' values: write the result JSON (and the recording, the video)
     and print a line for each."""
     from madp.controllers import controller_info, make_controller, resolve_checkpoint
-    from madp.eval.recorders import RECORD_FORMATS, recorder
+    from madp.eval.recorders import recorder
     from madp.policies import SamplingSettings
     from madp.policies.device import resolve_device
     from madp.sim import CoverageEnv, Scenario, rollout as run
@@ -59,8 +99,8 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
     device = resolve_device(device)  # checked, like the video path, before anything is read or run
     sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
     frames = [Frames(check_video_path(video), steps)] if video is not None else []
-    if record_format not in RECORD_FORMATS:  # the format is checked before anything runs
-        raise SettingError("record-format", f"expected one of {', '.join(RECORD_FORMATS)}, got {record_format!r}")
+    check_record(record_format)  # the format, its extra and the paths are checked before anything runs
+    check_outputs(out, record)
     net = network_settings(network) if network is not None else None
     sc = Scenario.load(scenario)
     seed = seed if seed is not None else sc.seed or 0
@@ -74,7 +114,10 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
     env = CoverageEnv(sc, network=net)
     rec = recorder(record_format, env, ctrl, controller, steps) if record is not None else None
     result = run(env, ctrl, steps, frames + ([rec] if rec else []))
-    write_json_atomic(out, result.to_json(controller))
+    doc = result.to_json(controller)
+    if env.network is not None:  # the network's settings and the bytes each robot put on the air per step
+        doc["network"] = {"settings": net.as_dict(), "bytes_per_robot_step": env.network.bytes_per_robot_step(steps)}
+    write_json_atomic(out, doc)
     if rec is not None:
         typer.echo(f"{record_format} recording: {rec.write(record)}")
     typer.echo(f"{controller}: J({steps})/J(0) = {result.normalized_cost[-1]:.4f}"

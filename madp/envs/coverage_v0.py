@@ -36,6 +36,7 @@ from pettingzoo.utils import parallel_to_aec
 
 from madp.sim.network import NetworkSettings
 from madp.sim import SimParams
+from madp.sim.rules import closer_than, distances_m
 
 from .base import DEFAULT_MAX_STEPS, RENDER_MODES, CoverageWorld, map_bounds
 
@@ -62,8 +63,8 @@ def neighbour_table(positions_m: np.ndarray, comm_radius_m: float,
     k = max(n - 1, 1)
     held = positions_m[None, :, :] if view is None else view[1]
     rel = held - positions_m[:, None, :]  # [i, j, 2] = x_j - x_i
-    dist = np.linalg.norm(rel, axis=2)
-    near = (dist < comm_radius_m) & ~np.eye(n, dtype=bool)
+    dist = distances_m(rel)
+    near = closer_than(rel, comm_radius_m) & ~np.eye(n, dtype=bool)
     if view is not None:
         near &= view[0]
     key = np.where(near, dist, np.inf)

@@ -174,13 +174,12 @@ def write_report(suite_dir: Path, suite: str, *, all_threshold: int = 8,
     if summary["sampling"]:
         md += ["", sampling_markdown(summary["sampling"])]
     if suite == "faults":
-        from .faults import paired_against_ideal, paired_markdown
+        from .faults import faults_sections
 
-        summary["paired_against_ideal"] = paired_against_ideal(
-            column(results, "final_cost").astype(float), column(results, "group"), column(results, "env"),
-            column(results, "controller"), controllers)
-        if summary["paired_against_ideal"]:
-            md += ["", paired_markdown(summary["paired_against_ideal"])]
+        entries, sections = faults_sections(results, controllers)
+        summary.update(entries)
+        for section in sections:
+            md += ["", section]
     plots = [name for name in written if name.endswith(".png")]
     if plots:
         md += ["", "Plots:", ""] + [f"![{name[:-4]}]({name})" for name in plots]

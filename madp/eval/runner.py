@@ -7,7 +7,8 @@ Layout of ``OUT/<suite>/``::
     jobs/<env>-<controller>.npz   one finished rollout: cost curve, step times (written atomically;
                                   a named controller ``madp:r4`` is ``madp@r4`` in file names)
     curves.parquet         normalised cost per (group, env, controller, step)
-    results.parquet        final cost and wall time per control step per (group, env, controller)
+    results.parquet        final cost, wall time per control step and, over a network, the bytes each robot
+                           put on the air per step (``bytes_per_robot_step``) per (group, env, controller)
     summary.md, summary.json, *.png      from :mod:`madp.eval.report`
     rollouts/<env>-<controller>.mcap     with --record K: the first K environments, for Foxglove
     videos/<env>-<controller>.mp4        with --video K: K environments spread over the groups (:func:`video_envs`)
@@ -21,6 +22,7 @@ Ray tasks (:mod:`madp.io.ray_backend`) writing into ``OUT/<suite>/``, a path eve
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import multiprocessing as mp
 import os
@@ -42,13 +44,24 @@ from madp.policies import SamplingSettings
 from madp.sim import CoverageEnv
 from madp.sim.rollout import Actions, Costs, Hook, Links, Positions, Samples, Timing, act_alone, run
 
-from .suites import EnvSpec, only_groups, suite_envs
+from .suites import MAX_NUM_ENVS, EnvSpec, only_groups, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
                     "device": "cpu", "runtime": "torch"}
 #: ``--runtime``: MADP (decentralized) as the PyTorch policy, or robot by robot through ``madp export``'s files.
 RUNTIMES = ("torch", "onnx")
+#: What ``--runtime onnx`` imports (the export and the robot runtime): madp's ``onnx`` extra.
+ONNX_MODULES = ("onnx", "onnxruntime", "onnxscript")
+
+
+def check_extra(setting: str, value: str, extra: str, modules: tuple[str, ...]) -> None:
+    """A one-line error, before any work, when ``value`` of ``setting`` needs a module of madp's extra
+    ``extra`` that is not installed (naming the modules and the ``pip install`` that brings them)."""
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise SettingError(setting, f"{value} needs {', '.join(missing)}, which is not installed: "
+                                    f"pip install 'madp[{extra}]'")
 
 
 @dataclass(frozen=True)
@@ -76,6 +89,12 @@ class EvalConfig:
     def __post_init__(self) -> None:
         if self.runtime not in RUNTIMES:
             raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {self.runtime!r}")
+        if self.runtime == "onnx":
+            check_extra("runtime", "onnx", "onnx", ONNX_MODULES)
+        n = self.num_envs
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_NUM_ENVS:
+            raise SettingError("num_envs", f"expected a whole number of environments per group in [1, {MAX_NUM_ENVS}], "
+                                           f"got {n!r}")
         if self.ray is not None:
             import_ray()  # a one-line error now when Ray is not installed
 
@@ -162,7 +181,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
     if video:
         frames.write()
     _save_job(job_path(suite_dir, spec, controller), costs.cost[0], timing.step_s, env.num_robots,
-              len(scenario.features))
+              len(scenario.features), _traffic(env, steps))
     return {"key": spec.key, "controller": controller}
 
 
@@ -171,10 +190,21 @@ def _network_metadata(spec: EnvSpec) -> dict:
     return {} if spec.network is None else {f"network.{k}": v for k, v in spec.network.as_dict().items()}
 
 
-def _save_job(job_file: Path, costs: np.ndarray, step_s: np.ndarray, num_robots: int, num_features: int) -> None:
+def _traffic(env: CoverageEnv, steps: int) -> dict[str, float]:
+    """The mean bytes each robot put on the air per step, per channel and ``total``
+    (:meth:`madp.sim.network.Network.bytes_per_robot_step`); none without a network."""
+    return {} if env.network is None else env.network.bytes_per_robot_step(steps)
+
+
+def _save_job(job_file: Path, costs: np.ndarray, step_s: np.ndarray, num_robots: int, num_features: int,
+              traffic: dict[str, float]) -> None:
+    """One job file: the cost curve, the step times, the sizes and the bytes on the air per robot and
+    step (``bytes_channels`` [C] names, ``bytes_per_robot_step`` [C]; empty without a network)."""
     job_file.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(job_file, ".npz", fsync=False) as tmp:  # a full disk: the error names the job file
-        np.savez(tmp, cost=costs, step_s=step_s, num_robots=num_robots, num_features=num_features)
+        np.savez(tmp, cost=costs, step_s=step_s, num_robots=num_robots, num_features=num_features,
+                 bytes_channels=np.array(list(traffic), dtype=str),
+                 bytes_per_robot_step=np.array(list(traffic.values()), dtype=np.float64))
 
 
 def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir: Path,
@@ -206,7 +236,7 @@ def run_batch(cfg: EvalConfig, specs: list[EnvSpec], controller: str, suite_dir:
         f.write()
     for i, (spec, env) in enumerate(zip(specs, envs)):
         _save_job(job_path(suite_dir, spec, controller), costs.cost[i], timing.step_s, env.num_robots,
-                  len(env.scenario.features))
+                  len(env.scenario.features), _traffic(env, cfg.steps))
     return [{"key": s.key, "controller": controller} for s in specs]
 
 
@@ -408,6 +438,15 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     return write_report(suite_dir, suite)
 
 
+def _job_bytes(job) -> float:
+    """A job file's total bytes on the air per robot and step (NaN without a network, or from a job
+    file written before they were counted)."""
+    if "bytes_channels" not in job.files:
+        return float("nan")
+    names = [str(c) for c in job["bytes_channels"]]
+    return float(job["bytes_per_robot_step"][names.index("total")]) if "total" in names else float("nan")
+
+
 def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     """curves.parquet and results.parquet from the job files, in suite order."""
     import pyarrow as pa
@@ -416,7 +455,8 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     curves = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "step", "cost")}
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
-                               "sampler", "sampling_steps", "fixed_noise", "frame", "select", "candidates")}
+                               "sampler", "sampling_steps", "fixed_noise", "frame", "select", "candidates",
+                               "bytes_per_robot_step")}
     sampling = {c: controller_info(c).settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
@@ -434,7 +474,8 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        city=e.group if e.city_file else "", launch=e.launch,
                        sampler=sampling[c].get("sampler", ""), sampling_steps=sampling[c].get("sampling_steps", 0),
                        fixed_noise=sampling[c].get("fixed_noise", False), frame=sampling[c].get("frame", ""),
-                       select=sampling[c].get("select", ""), candidates=sampling[c].get("candidates", 0))
+                       select=sampling[c].get("select", ""), candidates=sampling[c].get("candidates", 0),
+                       bytes_per_robot_step=_job_bytes(d))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),

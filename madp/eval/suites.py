@@ -16,8 +16,10 @@
 | symmetry | {line,square}_d4-{g}, g = 0..7                 | the launch suite's line and square    |
 |         | (not part of all)                               | environments and their 7 images under |
 |         |                                                 | the world's rotations and reflections |
-| faults  | ideal, loss_10, loss_30, loss_50, delay_1s,      | the uniform suite's environments, each |
-|         | delay_5s, fail_25, noise_5m (not part of all)   | group over its network (:data:`FAULTS`) |
+| faults  | ideal, loss_10, loss_30, loss_50, burst_30,     | the uniform suite's environments, each |
+|         | no_comm, distance, bandwidth, delay_1s,         | group over its network (:data:`FAULTS`) |
+|         | delay_5s, fail_25, survivors_25, noise_5m       |                                       |
+|         | (not part of all)                               |                                       |
 
 Seeds: an environment's scenario seed is a hash of (suite, group, index) with bit 62 set, and
 dataset seeds always have it clear (:mod:`madp.datagen.plan`), so evaluation never replays a
@@ -44,17 +46,35 @@ EXTRA_SUITES = ("symmetry", "faults")  # diagnostic suites, run by name only (no
 #: Steps a kept message may outlive its delay in the faults suite (1 s): a lost message is bridged by
 #: the sender's last one for up to a second.
 FAULTS_KEEP_STEPS = 5
+#: Mean length of burst_30's bursts of lost messages (steps: 1 s), longer than a kept message bridges.
+FAULTS_BURST_STEPS = 5
 #: The faults suite's groups: the network between the robots (:mod:`madp.sim.network`) of each.
+#:
+#: * ``loss_*``: i.i.d. loss; ``burst_30``: loss_30's mean loss in bursts of 1 s on average
+#:   (Gilbert-Elliott); ``no_comm``: every message lost, each robot alone;
+#: * ``distance``: loss rising as (d / r_c)² to 60 % at r_c (30 % over a uniformly filled disc, as loss_30);
+#: * ``bandwidth``: at most 2000 bytes per robot per step (80 kbit/s): a position beacon is 35 bytes,
+#:   MADP's token message 171, an LPAC-K3 round up to 1043 (:func:`madp.sim.network.message_bytes`);
+#: * ``fail_25``: 8 of 32 robots stop at step 200; ``survivors_25``: the same 24 survivors, alone from
+#:   the start (the 8 stop at step 0). Both are J of the survivors over J(0) of all 32, so
+#:   survivors_25 − ideal is the capacity lost and fail_25 − survivors_25 what the failure costs beyond it.
 FAULTS = {
     "ideal": NetworkSettings(),
     "loss_10": NetworkSettings(loss=0.1, max_age_steps=FAULTS_KEEP_STEPS),
     "loss_30": NetworkSettings(loss=0.3, max_age_steps=FAULTS_KEEP_STEPS),
     "loss_50": NetworkSettings(loss=0.5, max_age_steps=FAULTS_KEEP_STEPS),
+    "burst_30": NetworkSettings(loss=0.3, burst_len=FAULTS_BURST_STEPS, max_age_steps=FAULTS_KEEP_STEPS),
+    "no_comm": NetworkSettings(loss=1.0),
+    "distance": NetworkSettings(loss_at_range=0.6, max_age_steps=FAULTS_KEEP_STEPS),
+    "bandwidth": NetworkSettings(max_bytes_per_step=2000),
     "delay_1s": NetworkSettings(delay_steps=5, max_age_steps=5 + FAULTS_KEEP_STEPS),
     "delay_5s": NetworkSettings(delay_steps=25, max_age_steps=25 + FAULTS_KEEP_STEPS),
     "fail_25": NetworkSettings(fail_fraction=0.25, fail_step=200),
+    "survivors_25": NetworkSettings(fail_fraction=0.25, fail_step=0),
     "noise_5m": NetworkSettings(position_noise_m=5.0),
 }
+#: The most environments a group may have: a larger number is a mistake, refused before anything runs.
+MAX_NUM_ENVS = 10_000
 SYMMETRY_LAYOUTS = ("line", "square")
 SIGMA_RANGES = ((30, 40), (20, 30), (10, 20), (5, 10))
 LAUNCHES = {"uniform": None, "square": (115.25, 115.25, 217.25, 217.25), "line": (0.0, 96.0, 1024.0, 352.0)}
@@ -132,8 +152,9 @@ def only_groups(envs: list[EnvSpec], groups: tuple[str, ...]) -> list[EnvSpec]:
 
 def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = None) -> list[EnvSpec]:
     """The environments of a suite, in a fixed order."""
-    if num_envs < 1:
-        raise SettingError("num_envs", f"expected a positive number, got {num_envs}")
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
+        raise SettingError("num_envs", f"expected a whole number of environments per group in [1, {MAX_NUM_ENVS}], "
+                                       f"got {num_envs!r}")
     base = SimParams()
     if suite == "uniform":
         return [EnvSpec(suite, "uniform", i, base) for i in range(num_envs)]

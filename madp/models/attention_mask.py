@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 __all__ = [
+    "closer_than_squared",
     "pairwise_offsets",
     "radius_adjacency",
     "connected_components_mask",
@@ -37,6 +38,13 @@ def pairwise_offsets(pos_m: Tensor) -> Tensor:
     return pos_m.unsqueeze(-3) - pos_m.unsqueeze(-2)
 
 
+def closer_than_squared(offsets: Tensor, radius_m: float) -> Tensor:
+    """``[...]`` bool: ``d·d < r·r`` for each offset ``d`` of ``offsets [..., 2]``, in the offsets' precision
+    (torch compares a float32 sum with r·r rounded to float32): the torch twin of
+    :func:`madp.sim.rules.closer_than_squared`, the rule the robot runtime computes in numpy."""
+    return offsets.square().sum(-1) < radius_m * radius_m
+
+
 def radius_adjacency(pos_m: Tensor, radius_m: float, valid: Tensor | None = None,
                      self_loops: bool = True) -> Tensor:
     """Communication graph: ``adj [B, N, N]`` bool, True where ``||x_i - x_j|| < radius_m``.
@@ -45,8 +53,7 @@ def radius_adjacency(pos_m: Tensor, radius_m: float, valid: Tensor | None = None
     have a self loop iff ``self_loops``.
     """
     valid = _valid_or_default(pos_m, valid)
-    d2 = pairwise_offsets(pos_m).square().sum(-1)
-    adj = d2 < radius_m * radius_m
+    adj = closer_than_squared(pairwise_offsets(pos_m), radius_m)
     adj = adj & valid.unsqueeze(-1) & valid.unsqueeze(-2)
     n = pos_m.shape[-2]
     eye = torch.eye(n, dtype=torch.bool, device=pos_m.device)

@@ -19,7 +19,10 @@ from torch_geometric.nn.conv.gcn_conv import gcn_norm
 
 from madp.models.lpac import sparse_adjacency
 
-from .swarm import clip_speed, swarm_tensors
+from madp.models.attention_mask import closer_than_squared
+from madp.sim.rules import clip_speed
+
+from .swarm import swarm_tensors
 
 if TYPE_CHECKING:
     from madp.sim import CoverageEnv
@@ -54,7 +57,7 @@ class LPACPolicy:
         held = torch.from_numpy(np.stack([v[1] for v in views]).astype(np.float32)).to(dev)
         known = torch.from_numpy(np.stack([v[0] for v in views])).to(dev)
         r2 = cfg.comm_radius_m * cfg.comm_radius_m
-        adj = known & ((held - own[:, :, None]).square().sum(-1) < r2)  # [B, N, N]: i's graph, edges j -> i
+        adj = known & closer_than_squared(held - own[:, :, None], cfg.comm_radius_m)  # [B, N, N]: i's graph, j -> i
         bb, ii, jj = adj.nonzero(as_tuple=True)
         if cfg.edge_weight == "gaussian":  # the weights of madp.models.lpac.batch_graph
             weight = torch.exp(-(own[bb, ii] - held[bb, ii, jj]).square().sum(-1) / r2)

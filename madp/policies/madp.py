@@ -24,10 +24,12 @@ import torch
 from madp.errors import SettingError
 from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_sampler
 from madp.models.symmetry import inverse_actions, transform_points, transform_state
+from madp.models.attention_mask import closer_than_squared
 from madp.robot.frame import frame_element  # torch-free: the robot runtime computes it too
+from madp.sim.rules import clip_speed
 
 from .select import DEFAULT_SELECT, check_selection, default_candidates, select_actions
-from .swarm import clip_speed, swarm_tensors
+from .swarm import swarm_tensors
 
 if TYPE_CHECKING:
     from madp.sim import CoverageEnv
@@ -180,7 +182,7 @@ class MADPPolicy:
         """Decentralized sampling through every robot's inbox (module docstring): ``obs [B, N, 4, S, S]``
         and ``own [B, N, 2]`` (each robot's own observation and position estimate, world frame) ->
         normalised actions ``[B * C, N, 2]`` in each environment's frame."""
-        model, dev, r2 = self.model, self.device, self.model.config.comm_radius_m ** 2
+        model, dev, r_c = self.model, self.device, self.model.config.comm_radius_m
         b, n = own.shape[:2]
         world = float(envs[0].params.world_size)
         gs = gs if self.frame == "d4" else [0] * b
@@ -196,7 +198,7 @@ class MADPPolicy:
         held = torch.stack([frame(v[1], k) for k, v in enumerate(views)])  # [B, N, N, 2]
         held = torch.where(eye[..., None], own_f[:, :, None], held)
         known = torch.from_numpy(np.stack([v[0] for v in views])).to(dev)
-        near = (held - own_f[:, :, None]).square().sum(-1) < r2
+        near = closer_than_squared(held - own_f[:, :, None], r_c)
         mask = (known & near) | eye
         tokens = model.embed_tokens(obs, own_f, mask, None, offsets_m=held - own_f[:, :, None])  # [B, N, T]
         width = tokens.shape[-1]
@@ -213,7 +215,7 @@ class MADPPolicy:
             key[k] = torch.from_numpy(rec.sent_step + 1).to(dev)
         pos_v = torch.where(eye[..., None], own_f[:, :, None], pos_v)
         tokens_v = torch.where(eye[..., None], tokens[:, :, None], tokens_v)
-        member = (member & ((pos_v - own_f[:, :, None]).square().sum(-1) < r2)) | eye
+        member = (member & closer_than_squared(pos_v - own_f[:, :, None], r_c)) | eye
         key = torch.where(eye, torch.tensor([e.steps + 1 for e in envs], device=dev)[:, None, None], key)
         valid = torch.ones(b, n, dtype=torch.bool, device=dev)
         return model.sample_views(tokens_v, pos_v, member, valid, self.num_steps, self.eta, noise=noise,

@@ -18,7 +18,3 @@ def swarm_tensors(envs: list[CoverageEnv], device: torch.device) -> tuple[torch.
     pos = torch.from_numpy(np.stack([e.estimates_m() for e in envs]).astype(np.float32)).to(device)
     return obs, pos
 
-
-def clip_speed(u: np.ndarray, u_max: float) -> np.ndarray:
-    speed = np.linalg.norm(u, axis=1, keepdims=True)
-    return np.where(speed > u_max, u * (u_max / np.maximum(speed, 1e-12)), u)

@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from madp.sim.network import Message
+from madp.sim.rules import closer_than_squared
 
 __all__ = ["DROP_REASONS", "InboxCounts", "read_inbox"]
 
@@ -150,7 +151,7 @@ def read_inbox(inbox, robot_id: int, step: int, position_m: np.ndarray, token_di
     if good:
         pos = np.stack([g[1] for g in good])
         if within is None:
-            inside = ((pos - np.asarray(position_m, dtype=np.float64)) ** 2).sum(1) < radius_m * radius_m
+            inside = closer_than_squared(pos - np.asarray(position_m, dtype=np.float64), radius_m)
         else:
             inside = np.asarray(within(pos), dtype=bool)
         counts.out_of_range = int((~inside).sum())

@@ -35,6 +35,7 @@ from madp.io.jsonfile import read_json
 from .choice import LocalViews, local_cell_costs, medoid_index, mppi_weights
 from madp.sim.network import Message
 from madp.sim.params import SimParams
+from madp.sim.rules import clip_speed, closer_than_squared
 
 from .frame import frame_element, inverse_action, transform_observation, transform_points
 from .inbox import InboxCounts, read_inbox
@@ -158,9 +159,8 @@ class RobotRuntime:
 
     def _in_range(self, own: np.ndarray, others: np.ndarray) -> np.ndarray:
         """``[M]`` bool: which of ``others [M, 2]`` (frame positions, float32) are within r_c of ``own [2]``,
-        in float32 (as the model's attention mask)."""
-        d2 = ((others - own) ** 2).sum(-1)
-        return d2 < np.float32(self.radius_m * self.radius_m)
+        in float32 (:func:`madp.sim.rules.closer_than_squared`, the model's attention mask's rule)."""
+        return closer_than_squared(others - own, self.radius_m)
 
     def _offset(self, own: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
         """``p [2]`` float32: the neighbourhood offset of a robot at ``own`` among ``neighbours [M, 2]``."""
@@ -243,9 +243,7 @@ class RobotRuntime:
         x = self.sample(tokens, pos_f, np.asarray(eps0, np.float32).reshape(self.candidates, len(ids), 2))
         u = (x[:, me] * self.std + self.mean).astype(np.float64)  # [K, 2] m/s in the frame
         u = inverse_action(u, g) if g else u
-        speed = np.linalg.norm(u, axis=1, keepdims=True)
-        u_max = self.params.max_speed_mps
-        u = np.where(speed > u_max, u * (u_max / np.maximum(speed, 1e-12)), u)
+        u = clip_speed(u, self.params.max_speed_mps)
         return StepResult(self.choose(u, view, nbr_m), u, own, counts)
 
     def choose(self, candidates_mps: np.ndarray, view: LocalViews | None, neighbours_m: np.ndarray) -> np.ndarray:

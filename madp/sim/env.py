@@ -24,6 +24,7 @@ from .idf import importance_map
 from .network import Message, Network, NetworkSettings, Received
 from .params import SimParams
 from .robot_maps import RobotMaps, SensorReading, robot_cells
+from .rules import closer_than
 from .scenario import Scenario, ScenarioError
 from .voronoi import ColumnPrefix, coverage_cost
 
@@ -54,8 +55,9 @@ def move(start_m: np.ndarray, offset_m: np.ndarray, actions_mps: np.ndarray, par
 
 def within_reach(own_m: np.ndarray, held_m: np.ndarray, comm_radius_m: float) -> np.ndarray:
     """``[R, M]`` bool: which of the positions ``held_m [R, M, 2]`` robot r holds are closer than r_c
-    to its own position estimate ``own_m [R, 2]`` (float64): the neighbours it knows of."""
-    return np.linalg.norm(held_m - own_m[:, None], axis=2) < comm_radius_m
+    to its own position estimate ``own_m [R, 2]`` (float64, :func:`madp.sim.rules.closer_than`): the
+    neighbours it knows of."""
+    return closer_than(held_m - own_m[:, None], comm_radius_m)
 
 
 class CoverageEnv:
@@ -150,9 +152,10 @@ class CoverageEnv:
         return robot_cells(self.positions_m)
 
     def neighbours(self) -> np.ndarray:
-        """Communication graph [N, N] bool: distance < r_c, no self loops (the true state)."""
-        d = np.linalg.norm(self.positions_m[:, None] - self.positions_m[None], axis=2)
-        return (d < self.params.comm_radius_m) & ~np.eye(self.num_robots, dtype=bool)
+        """Communication graph [N, N] bool: distance < r_c (:func:`madp.sim.rules.closer_than`), no self
+        loops (the true state)."""
+        x = self.positions_m
+        return closer_than(x[:, None] - x[None], self.params.comm_radius_m) & ~np.eye(self.num_robots, dtype=bool)
 
     def estimates_m(self) -> np.ndarray:
         """[N, 2]: each robot's estimate of its own position (the true one without position noise)."""

@@ -16,6 +16,7 @@ from functools import lru_cache
 import numpy as np
 
 from . import kernels
+from .rules import closer_than
 
 
 @lru_cache(maxsize=8)
@@ -101,8 +102,7 @@ def neighbour_maps(positions_m: np.ndarray, comm_radius_m: float, out_size: int 
     (every robot's true state; :func:`relative_neighbour_maps` draws them)."""
     n = len(positions_m)
     rel = (positions_m[None, :, :] - positions_m[:, None, :]).astype(np.float32)  # [i, j, 2]
-    dist = np.linalg.norm(positions_m[None, :, :] - positions_m[:, None, :], axis=2)
-    mask = (dist < comm_radius_m) & ~np.eye(n, dtype=bool)
+    mask = closer_than(positions_m[None, :, :] - positions_m[:, None, :], comm_radius_m) & ~np.eye(n, dtype=bool)
     return relative_neighbour_maps(rel, mask, comm_radius_m, out_size)
 
 

@@ -14,7 +14,7 @@ import madp.policies.madp as madp_policy
 from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings
-from madp.policies.swarm import clip_speed
+from madp.sim.rules import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.launch import D4_SIZE, d4_matrix
 from tests.conftest import one_torch_thread

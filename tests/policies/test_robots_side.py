@@ -124,7 +124,7 @@ def test_a_late_token_is_used_only_in_the_frame_it_was_computed_in():
         if t > 1 and same not in checked:
             other = copy.deepcopy(env)
             ch = other.network._channels["token"]
-            ch.payload[(t - 1) % other.network.ring, :, 2:] += 3.0  # the tokens sent at t − 1, changed
+            ch.sent[t - 1][0][:, 2:] += 3.0  # the tokens sent at t − 1 (in flight), changed
             g1, g2 = copy.deepcopy(gen), copy.deepcopy(gen)
             u, v = ctrl.act_batch([env], [g1])[0], ctrl.act_batch([other], [g2])[0]
             if same:

@@ -18,7 +18,7 @@ from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings, noise_generator
 from madp.policies.select import explore_prior, local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
-from madp.policies.swarm import clip_speed
+from madp.sim.rules import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.robot_maps import EXPLORED_BLOCK_M
 from tests.conftest import one_torch_thread
