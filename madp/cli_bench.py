@@ -106,6 +106,8 @@ def bench_infer_cmd(
     sweep: bool = typer.Option(True, "--sweep/--no-sweep", help="--no-sweep: no closed-loop sweep; the latency of every --grid setting instead."),
     candidates: Optional[str] = typer.Option(None, help="Also the latency of a whole decentralized control step with K samples per robot and each --select rule of madp eval, for these K (e.g. 1,4,16) at the default S, or K:S at S sampler steps (e.g. 4,8:2)."),
     robot: Optional[bool] = typer.Option(None, "--robot/--no-robot", help="Also one robot's control step through madp export's files (onnxruntime, 1 thread, the evaluation default's sampling) beside PyTorch's per robot; default: when onnxruntime imports (madp[onnx])."),
+    roofline: bool = typer.Option(False, "--roofline", help="Also FLOPs, bytes and time per part of the evaluation default's decentralized control step (observations, perception, masks, encoder, denoiser x K x S, selection) and the fraction of the measured matmul peak each reaches, fp32 and bf16."),
+    roofline_after: int = typer.Option(300, min=0, help="--roofline: expert steps before its second state (the first is a uniform environment's start)."),
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
@@ -115,5 +117,6 @@ def bench_infer_cmd(
     r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,
                         repeats=repeats, workers=workers, presets=parse_presets(presets), device=resolve_device(device),
                         sweep=sweep, candidates=parse_candidates(candidates) if candidates else (),
-                        robot=_onnxruntime() if robot is None else robot)
+                        robot=_onnxruntime() if robot is None else robot, roofline=roofline,
+                        roofline_after=roofline_after)
     _show(format_table(r), r, out)

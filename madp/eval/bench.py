@@ -20,6 +20,9 @@
 7. With ``robot`` (``--robot``, the default where onnxruntime imports): one robot's control step through
    the files of ``madp export`` on one thread, at the evaluation default's sampling, beside PyTorch's per robot
    (:mod:`madp.export.bench`).
+8. With ``roofline`` (``--roofline``): FLOPs, bytes and time of the evaluation default's control step by
+   part (observations, perception, masks, encoder, denoiser × K × S, selection) against this machine's
+   measured matmul peak, fp32 and bf16 (:mod:`madp.eval.roofline`).
 
 The paper reports 0.36 s per control step (N = 32) on an RTX 3090.
 """
@@ -218,13 +221,15 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
                     grid: dict[str, tuple[int, ...]] | None = None, envs: int = 50, steps: int = 600,
                     repeats: int = 5, workers: int = 0, threads: int | None = 2, presets=("cpu", "paper"),
                     progress: bool = True, device: str = "cpu", sweep: bool = True,
-                    candidates: tuple[tuple[int, int | None], ...] = (), robot: bool = False) -> dict:
+                    candidates: tuple[tuple[int, int | None], ...] = (), robot: bool = False,
+                    roofline: bool = False, roofline_after: int = 300) -> dict:
     """The whole ``madp bench infer`` (module docstring) on ``device`` (the sweep's rollouts and the
     latency). Without a checkpoint (none given and none shipped) the sweep is skipped and latency is
     reported for DDIM-50 only; with ``sweep=False`` the sweep is skipped and latency is reported for
     every setting of ``grid`` (DDIM-50 included). ``candidates``: also :func:`bench_select` at those K;
     ``robot``: also one robot's control step through ``madp export``'s files
-    (:func:`madp.export.bench.bench_robot_runtime`)."""
+    (:func:`madp.export.bench.bench_robot_runtime`); ``roofline``: also the control step's roofline at a
+    ``uniform`` environment's start and after ``roofline_after`` expert steps (:func:`madp.eval.roofline.roofline`)."""
     grid = grid or dict(DEFAULT_GRID)
     out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None, "device": device, "swept": sweep}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
@@ -253,6 +258,10 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         from madp.export.bench import bench_robot_runtime
 
         out["robot_runtime"] = bench_robot_runtime(checkpoint, repeats=repeats)
+    if roofline:
+        from .roofline import roofline as measure_roofline
+
+        out["roofline"] = measure_roofline(checkpoint, roofline_after, repeats, threads, device)
     if out["sweep"] and any(x["preset"] == "cpu" and x["mode"] == "decentralized" for x in lat):
         cands = [x for x in lat if x["preset"] == "cpu" and x["mode"] == "decentralized"]
         best = min(cands, key=lambda x: x["latency_s"])
@@ -301,4 +310,8 @@ def format_table(r: dict) -> list[str]:
         from madp.export.bench import format_robot_runtime
 
         lines += format_robot_runtime(r["robot_runtime"])
+    if r.get("roofline"):
+        from .roofline import format_roofline
+
+        lines += format_roofline(r["roofline"])
     return lines

@@ -1,8 +1,10 @@
 """Micro-benchmarks of the models on random inputs (no data, no simulator).
 
-* :func:`matmul_flops_per_s`, :func:`_count_flops`: this machine's float32 matmul FLOP/s and the
-  FLOPs of a function (``torch.utils.flop_counter``), for ``madp bench train``
-  (:mod:`madp.training.bench`), which times real training steps.
+* :func:`matmul_flops_per_s`, :func:`_count_flops`, :func:`_count_bytes`: this machine's matmul FLOP/s
+  (float32 or bfloat16, square or at a model's shapes), the FLOPs of a function
+  (``torch.utils.flop_counter``) and the bytes its matmul-class ops move, for ``madp bench train``
+  (:mod:`madp.training.bench`), which times real training steps, and the control step's roofline
+  (:mod:`madp.eval.roofline`).
 * :func:`bench_infer`: median latency of one MADP control step (CNN + encoder once, decoder S times)
   in decentralized or centralized-masked mode.
 
@@ -34,20 +36,15 @@ def random_swarm(batch: int, num_robots: int, world: float = 1024.0, generator: 
     return obs, pos, act
 
 
-def matmul_flops_per_s(n: int = 2048, reps: int = 10, device: torch.device | str = "cpu") -> float:
-    """Median float32 FLOP/s of an ``n x n @ n x n`` matmul (2 n^3 FLOPs) on this machine."""
-    a = torch.randn(n, n, device=device)
-    b = torch.randn(n, n, device=device)
-    for _ in range(2):
-        a @ b
-    times = []
-    for _ in range(reps):
-        _sync(device)
-        t = time.perf_counter()
-        a @ b
-        _sync(device)
-        times.append(time.perf_counter() - t)
-    return 2 * n**3 / statistics.median(times)
+def matmul_flops_per_s(n: int = 2048, reps: int = 10, device: torch.device | str = "cpu",
+                       shape: tuple[int, int, int] | None = None, dtype: torch.dtype = torch.float32) -> float:
+    """Median FLOP/s of a ``dtype`` matmul on this machine: ``n x n @ n x n`` (2 n^3 FLOPs), or
+    ``[m, k] @ [k, p]`` (2 m k p FLOPs) for ``shape = (m, k, p)``; two untimed calls first."""
+    m, k, p = shape or (n, n, n)
+    a = torch.randn(m, k, device=device).to(dtype)
+    b = torch.randn(k, p, device=device).to(dtype)
+    times = _timed(lambda: a @ b, 2, reps, device)
+    return 2 * m * k * p / statistics.median(times)
 
 
 class _threads:
@@ -104,6 +101,36 @@ def _count_flops(fn) -> int:
     with fc.FlopCounterMode(display=False, custom_mapping=custom) as counter:
         fn()
     return int(counter.get_total_flops())
+
+
+#: The ops whose operands :func:`_count_bytes` counts: matmuls, convolutions and attention (the ops
+#: ``FlopCounterMode`` counts FLOPs of), at whichever level the dispatcher shows them.
+_BYTE_OPS = ("linear", "addmm", "mm", "bmm", "matmul", "conv2d", "convolution", "scaled_dot_product_attention",
+             "_scaled_dot_product_flash_attention_for_cpu")
+
+
+def _count_bytes(fn) -> int:
+    """Bytes the matmul-class ops of ``fn()`` read and write (:data:`_BYTE_OPS`): every tensor operand
+    (weights, bias, inputs, an attention mask) once and the first output once, at its dtype's size.
+    Element-wise ops (norms, activations, residual adds) are taken as fused into them: not counted."""
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    def size(t: object) -> int:
+        return t.numel() * t.element_size() if isinstance(t, torch.Tensor) else 0
+
+    class Counter(TorchDispatchMode):
+        total = 0
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            out = func(*args, **(kwargs or {}))
+            if func.overloadpacket.__name__ in _BYTE_OPS:
+                first = out[0] if isinstance(out, (tuple, list)) else out
+                Counter.total += sum(size(a) for a in [*args, *(kwargs or {}).values()]) + size(first)
+            return out
+
+    with Counter():
+        fn()
+    return Counter.total
 
 
 def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int = 50, num_robots: int = 32,
