@@ -438,13 +438,13 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     return write_report(suite_dir, suite)
 
 
-def _job_bytes(job) -> float:
-    """A job file's total bytes on the air per robot and step (NaN without a network, or from a job
-    file written before they were counted)."""
+def _job_bytes(job) -> float | None:
+    """A job file's total bytes on the air per robot and step (None, a null in ``results.parquet``,
+    without a network or from a job file written before they were counted)."""
     if "bytes_channels" not in job.files:
-        return float("nan")
+        return None
     names = [str(c) for c in job["bytes_channels"]]
-    return float(job["bytes_per_robot_step"][names.index("total")]) if "total" in names else float("nan")
+    return float(job["bytes_per_robot_step"][names.index("total")]) if "total" in names else None
 
 
 def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
@@ -480,7 +480,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),
              "sampling_steps": pa.int32(), "candidates": pa.int32(),
-             "num_features": pa.int32(), "scenario_seed": pa.int64()}
+             "num_features": pa.int32(), "scenario_seed": pa.int64(), "bytes_per_robot_step": pa.float64()}
     ctab = pa.table({k: pa.array(np.concatenate([np.asarray(x) for x in v]), type=types.get(k)) for k, v in curves.items()})
     rtab = pa.table({k: pa.array(v, type=types.get(k)) for k, v in results.items()})
     for name, tab in (("curves", ctab), ("results", rtab)):
