@@ -10,7 +10,10 @@ the selection rules' numba kernels). Importing this package never imports torch 
 - :mod:`.frame`: the d4 frame of one robot (the evaluation default);
 - :mod:`.choice`: a robot's choice among its K samples (its view of its own map, the local cell cost,
   MPPI's weights, the medoid);
-- :mod:`.ros2`: the ROS 2 side: message definitions and rosbag2 (MCAP) recordings of rollouts.
+- :mod:`.ros2`: the ROS 2 side: message definitions and rosbag2 (MCAP) recordings of rollouts and swarms;
+- :mod:`.wire`: the records between the processes of a swarm and their Zenoh keys;
+- :mod:`.process`: one robot of a swarm as its own process (``madp-robot run``);
+- :mod:`.cli`: the ``madp-robot`` command (``step``: one control step of an export; ``run``).
 """
 
 from .agent import RobotAgent, SensorReading
