@@ -39,6 +39,19 @@ class EpisodeRecorder(Hook):
                 self.on_sample()
         return last or len(self.steps) >= self.max_samples
 
+    def episode(self, episode_id: int, scenario_seed: int, world_map: np.ndarray) -> Episode:
+        """What was recorded, as the :class:`madp.data_schema.Episode` ``episode_id``."""
+        return Episode(
+            episode_id=episode_id,
+            scenario_seed=int(scenario_seed),
+            actions=np.stack(self.acts),
+            positions=np.stack(self.pos),
+            observations=np.stack(self.obs),
+            steps=np.asarray(self.steps, dtype=np.int64),
+            world_map=world_map,
+            goals=np.stack(self.goals),
+        )
+
 
 def record_episode(
     scenario: Scenario,
@@ -62,16 +75,7 @@ def record_episode(
     recorder = EpisodeRecorder(expert, cfg, max_samples, driver is None, on_sample)
     drive = None if driver is None else (lambda envs, u: [driver(envs[0], u[0])])
     run([env], act_alone(expert), [recorder], drive=drive)
-    return Episode(
-        episode_id=ep_id,
-        scenario_seed=int(scenario.seed),
-        actions=np.stack(recorder.acts),
-        positions=np.stack(recorder.pos),
-        observations=np.stack(recorder.obs),
-        steps=np.asarray(recorder.steps, dtype=np.int64),
-        world_map=env.world_map_f32,
-        goals=np.stack(recorder.goals),
-    )
+    return recorder.episode(ep_id, scenario.seed, env.world_map_f32)
 
 
 def episode_scenario(cfg: DatagenConfig, seed: int) -> Scenario:

@@ -27,6 +27,10 @@ from madp.io.atomic import write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned, foreign_files
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
+from madp.sim.rollout import Hook, act_alone, run
+
+from .episodes import EpisodeRecorder
+from .plan import DatagenConfig
 
 __all__ = ["POSE_TOLERANCE_M", "RunLog", "import_logs", "log_episode", "read_log"]
 
@@ -75,6 +79,8 @@ def read_log(path: str | Path) -> RunLog:
         scenario = Scenario.from_dict(json.loads(info["scenario"]), f"{path} (madp metadata)")
         dt_s = float(info["dt_s"])
         n, steps = len(scenario.robots_m), int(info["steps"])
+        if steps < 2:
+            raise DataError.at(path, f"a log of {steps} step(s); importing needs at least 2")
         commands = np.full((steps, n, 2), np.nan)
         poses = np.full((steps + 1, n, 2), np.nan)
         for m in read_ros2_messages(str(path)):
@@ -110,30 +116,31 @@ def _step(stamp, dt_s: float) -> int:
     return int(round((int(stamp.sec) + int(stamp.nanosec) * 1e-9) / dt_s))
 
 
-def log_episode(log: RunLog, episode_id: int, record_every: int = 5) -> Episode:
-    """Replay ``log`` and label every ``record_every``-th state (and the last before the final
-    command) with the clairvoyant expert's action."""
-    env = CoverageEnv(log.scenario)
-    expert = ClairvoyantCVT()
-    steps = len(log.commands_mps)
-    acts, pos, obs, goals, recorded = [], [], [], [], []
-    for t in range(steps):
-        gap = np.abs(env.positions_m - log.positions_m[t]).max(1)
+class _Replay(Hook):
+    """Before each step of a log's replay: every robot's replayed position against its logged pose."""
+
+    def __init__(self, log: RunLog):
+        self.log = log
+
+    def actions(self, t, envs, actions, act_s):
+        gap = np.abs(envs[0].positions_m - self.log.positions_m[t]).max(1)
         if gap.max() > POSE_TOLERANCE_M:
             i = int(gap.argmax())
-            raise DataError.at(log.path, f"does not replay: robot {i} at step {t} is {gap[i]:.3g} m from its logged "
-                               "pose (the scenario or the applied commands do not match the run)")
-        if t % record_every == 0 or t == steps - 1:
-            acts.append(expert(env).astype(np.float32))
-            goals.append(expert.goals_m.astype(np.float32))
-            pos.append(env.positions_m.astype(np.float32))
-            obs.append(env.observations().astype(np.float16))
-            recorded.append(t)
-        env.step(log.commands_mps[t])
-    seed = log.scenario.seed if log.scenario.seed is not None else 0
-    return Episode(episode_id=episode_id, scenario_seed=int(seed), actions=np.stack(acts), positions=np.stack(pos),
-                   observations=np.stack(obs), steps=np.asarray(recorded, np.int64), world_map=env.world_map_f32,
-                   goals=np.stack(goals))
+            raise DataError.at(self.log.path, f"does not replay: robot {i} at step {t} is {gap[i]:.3g} m from its "
+                               "logged pose (the scenario or the applied commands do not match the run)")
+        return False
+
+
+def log_episode(log: RunLog, episode_id: int, record_every: int = 5) -> Episode:
+    """Replay ``log`` (its applied commands drive the world) and label every ``record_every``-th state
+    and the last before the final command with the clairvoyant expert's action, as datagen records
+    (:class:`madp.datagen.episodes.EpisodeRecorder`)."""
+    steps = len(log.commands_mps)
+    cfg = DatagenConfig(1, record_every=record_every, max_steps=steps - 1, params=log.scenario.params)
+    env, expert = CoverageEnv(log.scenario), ClairvoyantCVT()
+    recorder = EpisodeRecorder(expert, cfg, max_samples=steps, stops_when_converged=False)
+    run([env], act_alone(expert), [_Replay(log), recorder], drive=lambda envs, u: log.commands_mps[envs[0].steps][None])
+    return recorder.episode(episode_id, log.scenario.seed if log.scenario.seed is not None else 0, env.world_map_f32)
 
 
 def import_logs(logs: list[str | Path], out: str | Path, fmt: str = "mcap", split: str = "train", record_every: int = 5,
@@ -150,17 +157,18 @@ def import_logs(logs: list[str | Path], out: str | Path, fmt: str = "mcap", spli
     if not logs:
         raise SettingError("logs", "expected at least one log file")
     runs = [read_log(p) for p in logs]  # every log read and checked before anything is written
-    n = {len(r.scenario.robots_m) for r in runs}
-    if len(n) > 1:
-        raise DataError.at(runs[-1].path, f"has {len(runs[-1].scenario.robots_m)} robots where the others have "
-                           f"{len(runs[0].scenario.robots_m)}; import swarms of one size into one dataset")
+    n = len(runs[0].scenario.robots_m)
+    for log in runs:
+        if len(log.scenario.robots_m) != n:
+            raise DataError.at(log.path, f"has {len(log.scenario.robots_m)} robots where {runs[0].path} has {n}; "
+                               "import swarms of one size into one dataset")
     root = Path(out)
     with locked_dir(root):
         _prepare(root, overwrite)
         acc = ActionStatsAccumulator()
         infos = []
-        for k, run in enumerate(runs):
-            ep = log_episode(run, k, record_every)
+        for k, log in enumerate(runs):
+            ep = log_episode(log, k, record_every)
             acc.add(ep.actions)
             rel = f"{split}/shard-{k:05d}.{fmt}"
             info = write_shard(root / rel, [ep], fmt)
@@ -169,7 +177,7 @@ def import_logs(logs: list[str | Path], out: str | Path, fmt: str = "mcap", spli
         params = {"imported_logs": [{"file": str(r.path), "sha256": sha256_file(r.path)} for r in runs],
                   "record_every": record_every, "params": runs[0].scenario.params.to_dict()}
         splits = {s: SplitInfo(infos if s == split else []) for s in SPLITS}
-        manifest = Manifest(format=fmt, num_robots=n.pop(), params=params, splits=splits,
+        manifest = Manifest(format=fmt, num_robots=n, params=params, splits=splits,
                             action_stats=acc.result() if split == "train" else None,
                             created_by="madp dataset import " + " ".join(str(p) for p in logs) + f" --split {split}")
         write_text_atomic(root / IMPORT_FILE, json.dumps({"shards": [i.file for i in infos]}) + "\n")

@@ -37,7 +37,7 @@ import numpy as np
 from madp.errors import InputError, SettingError
 from madp.io.jsonfile import read_json
 
-from .stats import CONFIDENCE, grouped_stats, order_controllers, order_groups
+from .stats import CONFIDENCE, grouped_stats, order_controllers, order_groups, paired_stats
 
 __all__ = ["Run", "load_run", "parse_run_argument", "name_runs", "compare_runs", "markdown", "write_compare"]
 
@@ -228,13 +228,9 @@ def _stats_row(gi: np.ndarray, n_groups: int, costs: dict[str, np.ndarray], base
         if name == base:
             continue
         d = c - costs[base]
-        st = grouped_stats(gi, d, confidence)
-        wins = np.bincount(gi, weights=(d < 0), minlength=n_groups)
-        ties = np.bincount(gi, weights=(d == 0), minlength=n_groups)
-        for j, k in enumerate(st["key"].tolist()):
-            rows[k]["paired"][name] = {"n": int(st["n"][j]), "diff": float(st["mean"][j]), "se": _num(st["se"][j]),
-                                       "ci_lo": float(st["ci_lo"][j]), "ci_hi": float(st["ci_hi"][j]),
-                                       "wins": int(wins[k]), "ties": int(ties[k])}
+        for k in np.unique(gi).tolist():
+            p = paired_stats(d[gi == k], confidence)
+            rows[k]["paired"][name] = {**p, "se": _num(p["se"])}
     return rows
 
 

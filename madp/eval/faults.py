@@ -17,7 +17,7 @@ import numpy as np
 from madp.controllers import display_name
 
 from .plots import _new_figure, _save
-from .stats import column, has_column
+from .stats import column, has_column, paired_stats
 from .suites import FAULTS
 
 #: Each group read against another on the same environments (besides the ideal group): a failure
@@ -119,11 +119,10 @@ def paired_against(final: np.ndarray, group: np.ndarray, env: np.ndarray, contro
             if not pairs:
                 continue
             a, b = np.array(pairs).T
-            d = a - b
-            rows.append({"group": g, "reference": reference, "controller": c, "n": len(d), "mean": float(a.mean()),
-                         "ideal": float(b.mean()), "diff": float(d.mean()),
-                         "se": float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else 0.0,
-                         "relative": float(d.mean() / b.mean())})
+            p = paired_stats(a - b)
+            rows.append({"group": g, "reference": reference, "controller": c, "n": p["n"], "mean": float(a.mean()),
+                         "ideal": float(b.mean()), "diff": p["diff"], "se": p["se"] if p["n"] > 1 else 0.0,
+                         "relative": p["diff"] / float(b.mean())})
     return rows
 
 

@@ -39,7 +39,7 @@ from madp.errors import InputError
 from madp.io.jsonfile import read_json
 
 from .paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
-from .stats import CONFIDENCE, grouped_stats, natural_key, order_controllers, order_groups, summarize
+from .stats import CONFIDENCE, natural_key, order_controllers, order_groups, paired_stats, summarize
 from .tables import ALL_ROW, SAMPLER_NAMES, best_markdown
 
 __all__ = ["BLOCKS", "KEPT_FILE", "Kept", "load_kept", "render", "replace_blocks", "update_pages"]
@@ -201,10 +201,9 @@ def _paired(option: dict[str, np.ndarray], default: dict[str, np.ndarray], contr
                          f"{controller!r} environments; an option is paired with the default")
     cost = option["final_cost"][sel].astype(float)
     diff = cost - np.array([base[e] for e in envs])
-    st = grouped_stats(np.zeros(len(diff), dtype=np.int64), diff, CONFIDENCE)
-    return {"n": len(diff), "mean": float(cost.mean()), "base": float(cost.mean() - diff.mean()),
-            "diff": float(st["mean"][0]), "se": float(st["se"][0]), "lo": float(st["ci_lo"][0]),
-            "hi": float(st["ci_hi"][0]), "wins": int((diff < 0).sum())}
+    p = paired_stats(diff)
+    return {"n": p["n"], "mean": float(cost.mean()), "base": float(cost.mean() - diff.mean()), "diff": p["diff"],
+            "se": p["se"], "lo": p["ci_lo"], "hi": p["ci_hi"], "wins": p["wins"]}
 
 
 def options_table(kept: Kept) -> str:

@@ -144,6 +144,19 @@ def grouped_stats(keys: np.ndarray, values: np.ndarray, confidence: float = CONF
             "ci_lo": mean - half, "ci_hi": mean + half, "median": median}
 
 
+def paired_stats(diff: np.ndarray, confidence: float = CONFIDENCE) -> dict[str, Any]:
+    """One set of paired differences ``diff [n]`` (a run minus its baseline on the same environments):
+    ``n``, ``diff`` (the mean), ``se``, ``ci_lo``/``ci_hi`` (:func:`grouped_stats` of one group; nan SE
+    for n = 1), ``wins`` (environments where the run is lower) and ``ties``."""
+    d = np.asarray(diff, dtype=float)
+    st = grouped_stats(np.zeros(len(d), dtype=np.int64), d, confidence)
+    if not len(d):
+        return {"n": 0, "diff": float("nan"), "se": float("nan"), "ci_lo": float("nan"), "ci_hi": float("nan"),
+                "wins": 0, "ties": 0}
+    return {"n": int(len(d)), "diff": float(st["mean"][0]), "se": float(st["se"][0]), "ci_lo": float(st["ci_lo"][0]),
+            "ci_hi": float(st["ci_hi"][0]), "wins": int((d < 0).sum()), "ties": int((d == 0).sum())}
+
+
 def _group_meta(table, group: np.ndarray, groups: Sequence[str]) -> dict[str, dict[str, Any]]:
     """Scenario parameters of each group (a scalar when constant over the group, else a sorted list)."""
     meta: dict[str, dict[str, Any]] = {g: {} for g in groups}

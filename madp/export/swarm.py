@@ -138,7 +138,4 @@ def token_inboxes(env, sent: list[Message]) -> list[list[Message]]:
         nbr = env.neighbours()
         return [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(env.num_robots)]
     payload = np.stack([np.concatenate([m.position_m, m.token]) for m in sent])
-    rec = env.network.exchange("token", env.steps, payload)
-    return [[Message(int(j), int(rec.sent_step[i, j]), rec.payload[i, j, :2].copy(),
-                     rec.payload[i, j, 2:].astype(np.float32)) for j in np.flatnonzero(rec.valid[i])]
-            for i in range(env.num_robots)]
+    return env.network.exchange("token", env.steps, payload).messages()

@@ -31,7 +31,7 @@ from madp.sim.params import SimParams
 from madp.sim.robot_maps import RobotMaps, SensorReading
 
 from .choice import MAP_RULES, LocalViews, map_prior, map_views
-from .inbox import _whole
+from .inbox import read_inbox
 from .runtime import RobotRuntime, StepResult
 
 __all__ = ["RobotAgent", "SensorReading"]
@@ -85,7 +85,7 @@ class RobotAgent:
     def token(self, beacons: list) -> Message:
         """From the position beacons its radio delivered (any objects: those that are not a usable
         :class:`Message`, its own, from a later step or older than ``runtime.max_age`` are dropped,
-        as are all of a sender that sent several; never raised), its neighbours (those within r_c of
+        and of a sender's several the newest is kept; never raised), its neighbours (those within r_c of
         its own estimate), its observation, its selection view and its token message of this step."""
         self._started("token")
         own = self.position_m[None]
@@ -124,20 +124,8 @@ class RobotAgent:
         return map_prior(self.maps, view) if self.runtime.rule == "explore" else view
 
     def _beacon_positions(self, beacons) -> np.ndarray:
-        """``[M, 2]`` float64: the positions of the usable beacons, one per sender, ascending by sender."""
-        max_age = self.runtime.max_age
-        by_sender: dict[int, list[np.ndarray]] = {}
-        for msg in [] if beacons is None else list(beacons):
-            try:
-                if not isinstance(msg, Message) or not _whole(msg.sender) or not _whole(msg.step):
-                    continue
-                pos = np.asarray(msg.position_m, dtype=np.float64)
-                if pos.shape != (2,) or not np.isfinite(pos).all() or int(msg.sender) == self.robot_id:
-                    continue
-                if int(msg.step) > self.step or (max_age is not None and int(msg.step) < self.step - max_age):
-                    continue
-            except Exception:  # anything else a hostile object does: not a beacon
-                continue
-            by_sender.setdefault(int(msg.sender), []).append(pos)
-        kept = [v[0] for _, v in sorted(by_sender.items()) if len(v) == 1]
-        return np.array(kept, dtype=np.float64).reshape(-1, 2)
+        """``[M, 2]`` float64: the positions of the usable beacons (:func:`madp.robot.read_inbox`'s rules
+        for a message without a token; the range is applied by the caller), ascending by sender."""
+        kept, _ = read_inbox(beacons, self.robot_id, self.step, self.position_m, None, self.params.comm_radius_m,
+                             within=lambda pos: np.ones(len(pos), bool), max_age=self.runtime.max_age)
+        return np.array([p for _, p, _ in kept], dtype=np.float64).reshape(-1, 2)

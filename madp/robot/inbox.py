@@ -68,9 +68,10 @@ def _whole(v) -> bool:
     return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
 
-def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None,
+def _check(msg, robot_id: int, step: int, token_dim: int | None, max_age: int | None,
            same_frame=None) -> tuple[str | None, tuple | None]:
-    """``(reason, None)`` for a bad message, else ``(None, (sender, position_m [2] float64, token [D] float32))``."""
+    """``(reason, None)`` for a bad message, else ``(None, (sender, position_m [2] float64, token [D]
+    float32, step))``; with ``token_dim`` None a position beacon (its token, if any, is not read: None)."""
     if not isinstance(msg, Message) or not _whole(msg.sender) or not _whole(msg.step):
         return "malformed", None
     if not (0 <= msg.sender <= MAX_SENDER and 0 <= msg.step <= MAX_STEP):
@@ -83,18 +84,11 @@ def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None,
         return "malformed", None
     if not np.isfinite(pos).all():
         return "non_finite", None
-    if msg.token is None:
-        return "bad_token", None
-    try:
-        token = np.asarray(msg.token)
-        if token.dtype.kind not in "fiu" or token.shape != (token_dim,):
-            return "bad_token", None
-        token = token.astype(np.float32)
-    except (TypeError, ValueError, OverflowError):
-        return "bad_token", None
-    with np.errstate(over="ignore"):
-        if not np.isfinite(token).all():
-            return "non_finite", None
+    token = None
+    if token_dim is not None:  # a token message (a beacon's token is not read)
+        reason, token = ("bad_token", None) if msg.token is None else _token(msg.token, token_dim)
+        if reason is not None:
+            return reason, None
     if int(msg.step) > step:
         return "future", None
     if max_age is not None and int(msg.step) < step - max_age:
@@ -104,6 +98,21 @@ def _check(msg, robot_id: int, step: int, token_dim: int, max_age: int | None,
     if int(msg.sender) == robot_id:
         return "duplicate", None
     return None, (int(msg.sender), pos, token, int(msg.step))
+
+
+def _token(value, token_dim: int) -> tuple[str | None, np.ndarray | None]:
+    """A message's token as float32 ``[token_dim]``, or the reason it is dropped."""
+    try:
+        token = np.asarray(value)
+        if token.dtype.kind not in "fiu" or token.shape != (token_dim,):
+            return "bad_token", None
+        token = token.astype(np.float32)
+    except (TypeError, ValueError, OverflowError):
+        return "bad_token", None
+    with np.errstate(over="ignore"):
+        if not np.isfinite(token).all():
+            return "non_finite", None
+    return None, token
 
 
 def _newest(good: list[tuple], duplicate: int) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], int]:
@@ -126,12 +135,13 @@ def _newest(good: list[tuple], duplicate: int) -> tuple[list[tuple[int, np.ndarr
     return kept, duplicate
 
 
-def read_inbox(inbox, robot_id: int, step: int, position_m: np.ndarray, token_dim: int, radius_m: float,
+def read_inbox(inbox, robot_id: int, step: int, position_m: np.ndarray, token_dim: int | None, radius_m: float,
                within=None, max_age: int | None = 0, same_frame=None
                ) -> tuple[list[tuple[int, np.ndarray, np.ndarray]], InboxCounts]:
     """The messages of ``inbox`` (any iterable; None is an empty inbox) robot ``robot_id`` keeps at
     control step ``step``: ``([(sender, position_m [2], token [token_dim]), ...] ascending by sender,
-    counts)``. ``within(position_m [M, 2]) -> [M] bool`` decides who is in range (default: Euclidean
+    counts)``; ``token_dim`` None reads position beacons (their token None). ``within(position_m [M, 2])
+    -> [M] bool`` decides who is in range (default: Euclidean
     distance < ``radius_m`` in float64); ``same_frame(sent_step) -> bool`` whether a message of an
     earlier step was computed in this step's frame (None: every frame is this one). Never raises on a
     message's content."""

@@ -185,9 +185,7 @@ class CoverageEnv:
         n = self.num_robots
         if self._received is None:
             return [[Message(j, self.steps, self.positions_m[j].copy()) for j in range(n) if j != i] for i in range(n)]
-        rec = self._received
-        return [[Message(int(j), int(rec.sent_step[i, j]), rec.payload[i, j].copy())
-                 for j in np.flatnonzero(rec.valid[i])] for i in range(n)]
+        return self._received.messages()
 
     def sensor_readings(self) -> list[SensorReading]:
         """Robot i's sensor reading at this step, the one its map got (:meth:`RobotMaps.read` at its

@@ -236,6 +236,15 @@ class Received:
     payload: np.ndarray
     sent_step: np.ndarray
 
+    def messages(self) -> list[list[Message]]:
+        """Each robot's held messages as :class:`Message`\\ s ``(sender, step sent, position, token)``,
+        ascending by sender, for a payload of ``[position_m (2), token (D)]`` per message (D = 0: position
+        beacons, token None; a token as float32)."""
+        token = self.payload.shape[2] > 2
+        return [[Message(int(j), int(self.sent_step[i, j]), self.payload[i, j, :2].copy(),
+                         self.payload[i, j, 2:].astype(np.float32) if token else None)
+                 for j in np.flatnonzero(self.valid[i])] for i in range(len(self.valid))]
+
 
 #: What happened on each link at a step (:meth:`Network.links`).
 LINK_OUT_OF_RANGE, LINK_DELIVERED, LINK_LOST, LINK_KEPT = 0, 1, 2, 3

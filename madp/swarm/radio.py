@@ -79,13 +79,7 @@ class Radio:
             if width > 2:
                 payload[i, 2:] = m.token
             senders[i] = True
-        rec = self.network.exchange(channel, step, payload, senders)
-        out = []
-        for i in range(n):
-            js = np.flatnonzero(rec.valid[i])
-            out.append([Message(int(j), int(rec.sent_step[i, j]), rec.payload[i, j, :2].copy(),
-                                rec.payload[i, j, 2:].astype(np.float32) if width > 2 else None) for j in js])
-        return out
+        return self.network.exchange(channel, step, payload, senders).messages()
 
     def delivered(self, channel: str, robot: int, count: int, size_bytes: int) -> None:
         c = self.counts[channel]
