@@ -157,6 +157,7 @@ def train(
     compile: bool = typer.Option(False, "--compile", help="MADP: run the model through torch.compile (docs/reports/2026-12-02-training-speed.md)."),
     stop_after_minutes: Optional[float] = typer.Option(None, help="Stop (with a checkpoint) at the first optimizer step after this many minutes of training (a time budget; the lr schedule is not shortened)."),
     stop_after_steps: Optional[int] = typer.Option(None, hidden=True),
+    comm_dropout: Optional[float] = typer.Option(None, help="MADP: each training sample, with this probability (0-1; default 0), loses links: a rate q from {0.3, 0.6, 1} (1: every robot alone), each pair of robots lost with probability q; attention and neighbour channels show only the robots still heard (madp.training.comm_dropout)."),
     distill: Optional[Path] = typer.Option(None, help="MADP: distil this policy file's sampler into one step: the student starts as this teacher and learns to predict, from the same noise, the sample its DPM-Solver++(2M) draws in 3 steps (the evaluation default); evaluate it with --sampling-steps 1."),
 ) -> None:
     """Train MADP or LPAC-K3 on a dataset; checkpoints, metrics.jsonl, resume; DDP under torchrun."""
@@ -173,7 +174,8 @@ def train(
                   lr=lr, seed=seed, num_workers=workers, grad_accum=grad_accum, val_samples=val_samples,
                   max_steps_per_epoch=max_steps_per_epoch, checkpoint_every=checkpoint_every,
                   stop_after_steps=stop_after_steps, stop_after_minutes=stop_after_minutes, augment=augment,
-                  edge_weight=edge_weight, init=str(init) if init else None, compile=compile or None, distill=str(distill) if distill else None)
+                  edge_weight=edge_weight, init=str(init) if init else None, compile=compile or None, distill=str(distill) if distill else None,
+                  comm_dropout=comm_dropout)
     res = run_train(cfg, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         typer.echo(f"{cfg.model}/{cfg.preset}: {res['stopped']} at step {res['step']}; "
@@ -202,6 +204,7 @@ def eval_cmd(
     frame: str = typer.Option("d4", help="MADP: d4 (the default: a random rotation/reflection of the world per step, shared by the swarm) | world (the world's own axes)."),
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
+    precision: str = typer.Option("fp32", help="MADP: fp32 | bf16 (the transformer's linear layers in bfloat16, the rest in float32: faster on CPUs with bfloat16 instructions; actions within bf16 rounding of fp32's)."),
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     video: int = typer.Option(0, min=0, help="Write MP4 videos of K environments per controller, spread over the suite's groups (each group's first, then each group's second, ...; cities: the first K cities) to OUT/<suite>/videos/."),
@@ -225,7 +228,7 @@ def eval_cmd(
     requested, named = parse_controllers(controllers) if controllers else (DEFAULT, {})
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
-    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame, select, candidates)
+    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame, select, candidates, precision)
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),

@@ -11,8 +11,8 @@ change as the swarm spreads). The parts:
 * ``masks``: the attention mask (its component closure: ceil(log2 N) matmuls of ``[N, N]``), the
   packing of the neighbourhoods (:mod:`madp.models.packing`) and their packed mask;
 * ``encoder``: Psi_E over the packed rows, once;
-* ``denoiser``: the decoder's cross-attention K/V of the K copies, the time embedding of the S steps,
-  and S passes of Psi_D over the K copies of every packed row;
+* ``denoiser``: the decoder's cross-attention K/V of every packed row (once, then repeated for the K
+  copies), the time embedding of the S steps, and S passes of Psi_D over the K copies of every packed row;
 * ``selection``: the rule's choice among the K candidates (:mod:`madp.robot.choice`);
 * ``other``: the whole step (:meth:`MADPPolicy.act_batch`, timed apart) less the parts: the frame's
   transform, the noise, speed clipping, Python.
@@ -115,7 +115,7 @@ def model_costs(cfg, lay: Layout) -> dict[str, tuple[int, int]]:
     rc = lay.rows * lay.copies
     m = rc * L
     dt = cfg.time_embed_dim or d
-    once = _linear(lay.steps, dt, 4 * d) + _linear(lay.steps, 4 * d, d) + cfg.n_dec_layers * _linear(m, d, 2 * d)
+    once = _linear(lay.steps, dt, 4 * d) + _linear(lay.steps, 4 * d, d) + cfg.n_dec_layers * _linear(slots, d, 2 * d)
     dec = _linear(m, d, 3 * d) + _linear(m, d, d) + _linear(m, d, d) + _linear(m, d, d)
     dec += 2 * _attention(rc, L, d, F32) + _linear(m, d, r * d) + _linear(m, r * d, d)
     per_pass = _linear(m, a, d) + cfg.n_dec_layers * dec + _linear(m, d, a)
@@ -227,6 +227,7 @@ def model_parts(model, obs: torch.Tensor, pos: torch.Tensor, sampling) -> tuple[
     once here), and the packed layout they run on."""
     from madp.models.attention_mask import packed_neighbourhood_mask
     from madp.models.packing import pack_neighbourhoods
+    from madp.models.transformer import attention_bias
 
     b, n = pos.shape[:2]
     k, steps = sampling.candidates, sampling.sampling_steps
@@ -249,9 +250,10 @@ def model_parts(model, obs: torch.Tensor, pos: torch.Tensor, sampling) -> tuple[
                         generator=torch.Generator().manual_seed(0)).to(pos.device)
 
     def denoiser():
-        mem, p, mk = (t.repeat_interleave(k, 0) for t in (memory, pos_p, mask_p))
+        rope, bias = model._sampling_rope(pos_p), attention_bias(mask_p, model.dtype)
         solver = model.make_sampler(sampling.sampler, steps, sampling.eta)
-        return model._sample_loop(mem, p, mk, noise.to(mem.dtype), solver, lambda i: torch.randn_like(noise))
+        return model._denoise_loop(*model._copies_context(memory, rope, bias, k), noise.to(model.dtype), solver,
+                                   lambda i: torch.randn_like(noise))
 
     parts = {"perception": lambda: model.embed_tokens(obs, pos, mask, valid), "masks": masks,
              "encoder": lambda: model.encode_tokens(tok_p, pos_p, mask_p), "denoiser": denoiser}

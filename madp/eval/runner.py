@@ -48,7 +48,7 @@ from .suites import MAX_NUM_ENVS, EnvSpec, only_groups, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
-                    "device": "cpu", "runtime": "torch"}
+                    "device": "cpu", "runtime": "torch", "precision": "fp32"}
 #: ``--runtime``: MADP (decentralized) as the PyTorch policy, or robot by robot through ``madp export``'s files.
 RUNTIMES = ("torch", "onnx")
 #: What ``--runtime onnx`` imports (the export and the robot runtime): madp's ``onnx`` extra.
@@ -91,6 +91,9 @@ class EvalConfig:
             raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {self.runtime!r}")
         if self.runtime == "onnx":
             check_extra("runtime", "onnx", "onnx", ONNX_MODULES)
+            if self.sampling.precision != "fp32":
+                raise SettingError("precision", f"{self.sampling.precision} samples with the PyTorch policy; "
+                                                "--runtime onnx runs the float32 export (use --runtime torch)")
         n = self.num_envs
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= MAX_NUM_ENVS:
             raise SettingError("num_envs", f"expected a whole number of environments per group in [1, {MAX_NUM_ENVS}], "
@@ -456,7 +459,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
                                "sampler", "sampling_steps", "fixed_noise", "frame", "select", "candidates",
-                               "bytes_per_robot_step")}
+                               "precision", "bytes_per_robot_step")}
     sampling = {c: controller_info(c).settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
@@ -475,7 +478,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        sampler=sampling[c].get("sampler", ""), sampling_steps=sampling[c].get("sampling_steps", 0),
                        fixed_noise=sampling[c].get("fixed_noise", False), frame=sampling[c].get("frame", ""),
                        select=sampling[c].get("select", ""), candidates=sampling[c].get("candidates", 0),
-                       bytes_per_robot_step=_job_bytes(d))
+                       precision=sampling[c].get("precision", ""), bytes_per_robot_step=_job_bytes(d))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),

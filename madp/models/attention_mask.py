@@ -82,24 +82,28 @@ def connected_components_mask(adj: Tensor) -> Tensor:
     return r > 0
 
 
-def attention_mask(pos_m: Tensor, radius_m: float, valid: Tensor | None = None) -> Tensor:
+def attention_mask(pos_m: Tensor, radius_m: float, valid: Tensor | None = None, links: Tensor | None = None) -> Tensor:
     """MADP attention mask ``M_att = M_W AND M_C`` (paper §III-B): ``mask [B, N, N]`` bool.
 
-    * ``M_W[i, j]``: ``||x_i - x_j|| < radius_m`` (includes i = j).
+    * ``M_W[i, j]``: ``||x_i - x_j|| < radius_m`` (includes i = j), and, with ``links [B, N, N]`` bool
+      (symmetric: which robots hear each other, e.g. training's communication dropout,
+      :mod:`madp.training.comm_dropout`), ``links[i, j]``; a robot always hears itself.
     * ``M_C[i, j]``: i and j lie in the same connected component of the communication graph
-      (edges at distance < radius_m). With edges defined by the same radius, M_W already implies
-      M_C; the conjunction is kept as the paper defines it (and stays right if the two radii are
-      ever made to differ).
+      (edges at distance < radius_m, and only over the links heard). With edges defined by the same
+      radius and links, M_W already implies M_C; the conjunction is kept as the paper defines it
+      (and stays right if the two radii are ever made to differ).
     * Padding robots never attend and are never attended to. To keep the softmax finite their
       row holds only the diagonal (a padding token attends to itself); their outputs are
       meaningless and are masked out by the callers.
     """
     valid = _valid_or_default(pos_m, valid)
+    eye = torch.eye(pos_m.shape[-2], dtype=torch.bool, device=pos_m.device)
     window = radius_adjacency(pos_m, radius_m, valid, self_loops=True)
-    comm = window  # the communication graph has the same radius as the attention window
+    if links is not None:
+        window = window & (links.to(device=pos_m.device, dtype=torch.bool) | eye)
+    comm = window  # the communication graph: the attention window's radius, the links heard
     component = connected_components_mask(comm)
     mask = window & component
-    eye = torch.eye(pos_m.shape[-2], dtype=torch.bool, device=pos_m.device)
     return mask | (eye & ~valid.unsqueeze(-1))
 
 

@@ -22,6 +22,7 @@ statistics, see :meth:`MADP.normalize_actions`), ``mask [B, N, N]`` bool, ``memo
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Callable
 
@@ -35,7 +36,7 @@ from .diffusion import DDPMSchedule
 from .packing import pack_neighbourhoods
 from .perception import PerceptionCNN, apply_per_robot
 from .samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, make_sampler, sample_loop
-from .transformer import RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTransformerEncoder, attention_bias
+from .transformer import Rope, RotaryEmbedding2D, SpatialTransformerDecoder, SpatialTransformerEncoder, attention_bias
 
 __all__ = ["MADP", "TimestepEmbedding"]
 
@@ -86,9 +87,11 @@ class MADP(ActionStatsMixin):
       action; all neighbourhoods run packed side by side (identical ones computed once).
     """
 
-    #: Row length (tokens) of the packed layout of :meth:`sample_decentralized`: 16, 24, 32, 48 and 64 were
-    #: timed (cpu and paper presets, 1 and 8 swarms); 32 was fastest in each (docs/reports/2026-12-01-sampler-steps.md).
-    decentralized_row_tokens: int = 32
+    #: Row length (tokens) of the packed layout of :meth:`sample_decentralized` (a neighbourhood longer than it
+    #: takes rows of a multiple of it). With next-fit packing 32 was fastest (docs/reports/2026-12-01-sampler-steps.md);
+    #: best-fit decreasing fills rows of any length nearly full, and 16 then beat 32 (CPU attention costs less per
+    #: token in rows of 16, and lengths that are not a multiple of 16 cost several times more).
+    decentralized_row_tokens: int = 16
 
     def __init__(self, config: MADPConfig | None = None):
         super().__init__()
@@ -126,10 +129,10 @@ class MADP(ActionStatsMixin):
         return self.head.weight.dtype
 
     # -------------------------------------------------------------------------------- conditioning
-    def attention_mask(self, pos_m: Tensor, valid: Tensor | None = None) -> Tensor:
-        """``[B, N, N]`` bool: distance < r_c AND same communication component; see
-        :func:`madp.models.attention_mask.attention_mask`."""
-        return attention_mask(pos_m, self.config.comm_radius_m, valid)
+    def attention_mask(self, pos_m: Tensor, valid: Tensor | None = None, links: Tensor | None = None) -> Tensor:
+        """``[B, N, N]`` bool: distance < r_c (AND heard: ``links [B, N, N]``, None = all) AND same
+        communication component; see :func:`madp.models.attention_mask.attention_mask`."""
+        return attention_mask(pos_m, self.config.comm_radius_m, valid, links)
 
     def embed_tokens(self, obs: Tensor, pos_m: Tensor, mask: Tensor, valid: Tensor | None = None,
                      offsets_m: Tensor | None = None) -> Tensor:
@@ -153,14 +156,17 @@ class MADP(ActionStatsMixin):
             tokens = tokens * valid.unsqueeze(-1).to(tokens.dtype)
         return tokens
 
-    def encode_tokens(self, tokens: Tensor, pos_m: Tensor, mask: Tensor) -> Tensor:
-        """Psi_E: ``tokens [B, N, 34]`` -> ``memory [B, N, d_model]``."""
-        rope = self.rope(pos_m, self.dtype)
+    def encode_tokens(self, tokens: Tensor, pos_m: Tensor, mask: Tensor, rope: Rope | None = None) -> Tensor:
+        """Psi_E: ``tokens [B, N, 34]`` -> ``memory [B, N, d_model]``; ``mask`` bool or its additive bias,
+        ``rope`` the rotations of ``pos_m`` when the caller has them (default: computed here)."""
+        rope = self.rope(pos_m, self.dtype) if rope is None else rope
         return self.encoder(self.token_proj(tokens), mask, rope)
 
-    def encode(self, obs: Tensor, pos_m: Tensor, valid: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """CNN + encoder, once per control step: ``-> (memory [B, N, d_model], mask [B, N, N])``."""
-        mask = self.attention_mask(pos_m, valid)
+    def encode(self, obs: Tensor, pos_m: Tensor, valid: Tensor | None = None,
+               links: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """CNN + encoder, once per control step: ``-> (memory [B, N, d_model], mask [B, N, N])``; ``links``:
+        see :meth:`attention_mask` (the tokens' neighbourhood offsets follow the mask)."""
+        mask = self.attention_mask(pos_m, valid, links)
         tokens = self.embed_tokens(obs, pos_m, mask, valid)
         return self.encode_tokens(tokens, pos_m, mask), mask
 
@@ -196,15 +202,17 @@ class MADP(ActionStatsMixin):
     # ----------------------------------------------------------------------------------- training
     def loss(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None,
              generator: torch.Generator | None = None, k: Tensor | None = None,
-             noise: Tensor | None = None) -> Tensor:
+             noise: Tensor | None = None, links: Tensor | None = None) -> Tensor:
         """DDPM loss ``E ||eps - eps_hat(U_k, O; k)||^2``: mean over valid robots and action dims.
 
         ``k ~ U{1..K}`` per sample and ``noise ~ N(0, I)`` are drawn with ``generator`` (which must
-        live on the tensors' device) unless given.
+        live on the tensors' device) unless given. ``links [B, N, N]`` bool: which robots hear each
+        other (encoder and decoder attend only over those; None: all), see
+        :mod:`madp.training.comm_dropout`.
         """
         b = actions_norm.shape[0]
         actions_norm = actions_norm.to(self.dtype)
-        memory, mask = self.encode(obs, pos_m, valid)
+        memory, mask = self.encode(obs, pos_m, valid, links)
         if k is None:
             k = self.schedule.sample_timesteps(b, actions_norm.device, generator)
         if noise is None:
@@ -230,24 +238,56 @@ class MADP(ActionStatsMixin):
 
     def forward(self, obs: Tensor, pos_m: Tensor, actions_norm: Tensor, valid: Tensor | None = None,
                 generator: torch.Generator | None = None, k: Tensor | None = None,
-                noise: Tensor | None = None, one_step: bool = False) -> Tensor:
+                noise: Tensor | None = None, one_step: bool = False, links: Tensor | None = None) -> Tensor:
         """Training loss (see :meth:`loss`; with ``one_step``, :meth:`one_step_loss` of ``actions_norm``
-        from ``noise``); ``forward`` so that DDP/compile wrappers see it."""
+        from ``noise``, which takes no ``links``); ``forward`` so that DDP/compile wrappers see it."""
         if one_step:
+            if links is not None:
+                raise ValueError("links: only the DDPM loss takes links, not one_step_loss")
             return self.one_step_loss(obs, pos_m, actions_norm, noise, valid)
-        return self.loss(obs, pos_m, actions_norm, valid, generator, k, noise)
+        return self.loss(obs, pos_m, actions_norm, valid, generator, k, noise, links)
 
     # ----------------------------------------------------------------------------------- sampling
+    def _sampling_rope(self, pos_m: Tensor) -> Rope:
+        """The RoPE rotations of ``pos_m [B, N, 2]`` as sampling applies them: the complex table
+        (:meth:`RotaryEmbedding2D.rotations`, one complex multiply per rotation) where the model computes
+        in float32 or float64 off MPS, else ``(cos, sin)`` in the model's dtype (bfloat16)."""
+        if self.dtype in (torch.float32, torch.float64) and pos_m.device.type != "mps":
+            return self.rope.rotations(pos_m, self.dtype)
+        return self.rope(pos_m, self.dtype)
+
+    def _state_dtype(self) -> torch.dtype:
+        """The dtype of the sampler's state ``x`` (noise, steps, actions): the model's, at least float32."""
+        return torch.promote_types(self.dtype, torch.float32)
+
     def _sample_loop(self, memory: Tensor, pos_m: Tensor, mask: Tensor, x: Tensor, sampler,
                      step_noise: Callable[[int], Tensor] | None) -> Tensor:
-        """Reverse diffusion ``x = U_{k_S} [B, N, 2]`` -> ``U_0`` with ``sampler`` (:mod:`.samplers`).
+        """Reverse diffusion ``x = U_{k_S} [B, N, 2]`` -> ``U_0`` with ``sampler`` (:mod:`.samplers`):
+        :meth:`_denoise_loop` with every layer's cross-attention K/V of the memory, the RoPE rotations
+        and the attention mask as an additive bias, computed once for all S decoder passes."""
+        rope = self._sampling_rope(pos_m)
+        return self._denoise_loop(self.decoder.memory_kv(memory, rope), rope, attention_bias(mask, self.dtype), x,
+                                  sampler, step_noise)
 
-        Computed once and reused for all S decoder passes: every layer's cross-attention K/V of the
-        memory, the RoPE angles, the attention mask as an additive bias, and the time embedding of
-        each of the S steps (one MLP call on ``[S]``)."""
-        rope = self.rope(pos_m, self.dtype)
+    def _copies_context(self, memory: Tensor, rope: Rope, bias: Tensor, copies: int) -> tuple[list, Rope, Tensor]:
+        """What the decoder passes over C = ``copies`` copies of every row of ``memory [R, L, d]`` hold fixed:
+        every layer's cross-attention K/V (computed once per row), the RoPE rotations and the additive
+        attention bias ``[R, 1, L, L]``, each repeated C times (row r, copy c -> row r * C + c)."""
         memory_kv = self.decoder.memory_kv(memory, rope)
-        bias = attention_bias(mask, self.dtype)
+        if copies == 1:
+            return memory_kv, rope, bias
+
+        def rep(t: Tensor) -> Tensor:
+            return t.repeat_interleave(copies, 0)
+
+        rope = rep(rope) if isinstance(rope, Tensor) else (rep(rope[0]), rep(rope[1]))
+        return [(rep(k), rep(v)) for k, v in memory_kv], rope, rep(bias)
+
+    def _denoise_loop(self, memory_kv: list, rope: Rope, bias: Tensor, x: Tensor, sampler,
+                      step_noise: Callable[[int], Tensor] | None) -> Tensor:
+        """The S decoder passes of the reverse diffusion from ``x = U_{k_S} [B, N, 2]``, given the decoder's
+        cross-attention K/V, RoPE rotations and additive attention bias; the time embedding of each of
+        the S steps is computed once (one MLP call on ``[S]``)."""
         temb = self.time_embed(torch.tensor(sampler.timesteps, device=x.device, dtype=torch.long))  # [S, d]
 
         def denoise(x_k: Tensor, i: int, k: int) -> Tensor:
@@ -255,6 +295,18 @@ class MADP(ActionStatsMixin):
             return self._as_eps(self.head(self.decoder(h, bias, rope, memory_kv)), x_k, k)
 
         return sample_loop(sampler, denoise, x, step_noise)
+
+    def with_bf16_linears(self) -> "MADP":
+        """A copy of this model for bfloat16 sampling: the linear layers of its encoder and decoder (nearly
+        all of a control step's arithmetic) hold their weights in bfloat16 and compute in it, each casting
+        its input (:mod:`.transformer`); the residual stream, layer norms, RoPE (float64 angles, as ever),
+        attention, the CNN, the token, action and time embeddings, the head, the sampler's state and the
+        action statistics stay in this model's dtype. This model is left as it is."""
+        model = copy.deepcopy(self)
+        for layer in (*model.encoder.modules(), *model.decoder.modules()):
+            if isinstance(layer, nn.Linear):
+                layer.to(torch.bfloat16)
+        return model
 
     def make_sampler(self, sampler: str, num_steps: int, eta: float = 0.0, clip_x0: float | None = None):
         """A fresh ``"ddim"`` / ``"dpm++"`` sampler on this model's schedule (see :mod:`.samplers`)."""
@@ -285,16 +337,16 @@ class MADP(ActionStatsMixin):
         if copies > 1:
             memory, mask, pos_m = (t.repeat_interleave(copies, 0) for t in (memory, mask, pos_m))
             valid = valid.repeat_interleave(copies, 0) if valid is not None else None
-        shape = (b * copies, n, self.config.action_dim)
+        shape, dt = (b * copies, n, self.config.action_dim), self._state_dtype()
         if noise is None:
-            noise = torch.randn(shape, generator=generator, device=memory.device, dtype=memory.dtype)
+            noise = torch.randn(shape, generator=generator, device=memory.device, dtype=dt)
 
         def draw(i: int) -> Tensor:
             if step_noise is not None:
-                return step_noise[i].to(memory.dtype)
-            return torch.randn(shape, generator=generator, device=memory.device, dtype=memory.dtype)
+                return step_noise[i].to(dt)
+            return torch.randn(shape, generator=generator, device=memory.device, dtype=dt)
 
-        x = self._sample_loop(memory, pos_m, mask, noise.to(memory.dtype), solver, draw)
+        x = self._sample_loop(memory, pos_m, mask, noise.to(dt), solver, draw)
         if valid is not None:
             x = x * valid.unsqueeze(-1).to(x.dtype)
         return x
@@ -317,11 +369,11 @@ class MADP(ActionStatsMixin):
 
         Layout (nothing loops over robots): the ``sum_i |M_i|`` real tokens of all neighbourhoods (of
         all B swarms) are packed, each neighbourhood whole, into rows of ``row_len`` tokens
-        (:attr:`decentralized_row_tokens`, or the largest neighbourhood if that is longer; next fit),
-        ``[R, row_len, ...]``, and attention is block-diagonal within a row
-        (:func:`packed_neighbourhood_mask`), so it never mixes two neighbourhoods. Per-token layers
-        run on the real tokens plus only the tail of each row, and attention costs ``row_len`` per
-        token rather than the whole swarm's token count.
+        (:attr:`decentralized_row_tokens`, or a multiple of it that holds the largest neighbourhood;
+        best-fit decreasing, :func:`madp.models.packing.pack_rows`), ``[R, row_len, ...]``, and attention
+        is block-diagonal within a row (:func:`packed_neighbourhood_mask`), so it never mixes two
+        neighbourhoods. Per-token layers run on the real tokens plus the few free slots the rows leave,
+        and attention costs ``row_len`` per token rather than the whole swarm's token count.
 
         Noise: by default the noise of robot j is the same in every neighbourhood that contains j
         (``U_K`` and each step's noise are drawn once per swarm, ``[B, N, 2]``, and gathered), as if
@@ -384,17 +436,16 @@ class MADP(ActionStatsMixin):
         dev = pos_v.device
         packed = pack_neighbourhoods(member, valid, self.decentralized_row_tokens, dedupe and not independent_noise,
                                      key)
-        pack, pos_p = packed.pack, packed.pack_view(pos_v)
+        pos_p = packed.pack_view(pos_v)
         mask_p = packed_neighbourhood_mask(pos_p, self.config.comm_radius_m, packed.valid, packed.group)
-        memory = self.encode_tokens(packed.pack_view(tokens_v), pos_p, mask_p)
-        if copies > 1:  # packed row r, copy c -> row r * C + c
-            memory, pos_p, mask_p = (t.repeat_interleave(copies, 0) for t in (memory, pos_p, mask_p))
+        rope, bias = self._sampling_rope(pos_p), attention_bias(mask_p, self.dtype)  # for encoder and decoder
+        memory = self.encode_tokens(packed.pack_view(tokens_v), pos_p, bias, rope)
+        memory_kv, rope, bias = self._copies_context(memory, rope, bias, copies)
 
         def pack_copies(t: Tensor) -> Tensor:  # [B * C, N, A] -> [R * C, row_len, A]
-            t = t.reshape(b, copies, *t.shape[1:])
-            return torch.stack([pack(t[:, c]) for c in range(copies)], 1).flatten(0, 1)
+            return packed.pack(t.unflatten(0, (b, copies)).transpose(1, 2)).transpose(1, 2).flatten(0, 1)
 
-        dt = memory.dtype
+        dt = self._state_dtype()
         swarm_shape = (b * copies, n, self.config.action_dim)
         packed_shape = (packed.rows * copies, packed.row_len, self.config.action_dim)
         if independent_noise:
@@ -412,7 +463,7 @@ class MADP(ActionStatsMixin):
                     return pack_copies(step_noise[i].to(dt))
                 return pack_copies(torch.randn(swarm_shape, generator=generator, device=dev, dtype=dt))
 
-        x = self._sample_loop(memory, pos_p, mask_p, x, solver, draw).unflatten(0, (packed.rows, copies))
-        own = torch.stack([packed.own(x[:, c]) for c in range(copies)], 1)  # each ego's own action [B * N, C, A]
+        x = self._denoise_loop(memory_kv, rope, bias, x, solver, draw).unflatten(0, (packed.rows, copies))
+        own = packed.own(x.transpose(1, 2))  # each ego's own action [B * N, C, A]
         out = own.reshape(b, n, copies, -1).transpose(1, 2).flatten(0, 1)  # [B * C, N, A]
         return out * valid.repeat_interleave(copies, 0).unsqueeze(-1).to(x.dtype)

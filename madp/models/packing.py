@@ -5,8 +5,9 @@ one batch (:meth:`madp.models.MADP.sample_decentralized`).
 A *unit* is one neighbourhood: an ego robot with the robots in its row of the attention mask (with
 ``dedupe``, egos whose neighbourhoods are the same set of robots share one unit). Token t is robot
 ``robot[t]`` as a member of unit ``unit[t]``; tokens are grouped by unit, robots ascending. Units are
-packed next-fit, in unit order, into rows of ``row_len`` tokens (a row may mix swarms: units never see
-each other, :func:`madp.models.attention_mask.packed_neighbourhood_mask`). Nothing loops over robots.
+packed best-fit decreasing into rows of ``row_len`` tokens (:func:`pack_rows`; a row may mix swarms:
+units never see each other, :func:`madp.models.attention_mask.packed_neighbourhood_mask`). Nothing loops
+over robots.
 
 Shapes: ``mask [B, N, N]`` and ``valid [B, N]`` bool; packed tensors ``[R, row_len, ...]``.
 """
@@ -22,16 +23,25 @@ __all__ = ["PackedNeighbourhoods", "pack_neighbourhoods", "pack_rows"]
 
 
 def pack_rows(sizes: Tensor, row_len: int) -> tuple[Tensor, Tensor]:
-    """Next-fit packing of items of ``sizes [U]`` (each <= row_len) into rows of ``row_len``:
-    ``(row [U], offset [U])`` long, items in their given order. One pass over U python ints
-    (U <= robots in the batch, once per control step)."""
-    row, off, r, fill = [], [], 0, 0
-    for s in sizes.tolist():
-        if fill + s > row_len:
-            r, fill = r + 1, 0
-        row.append(r)
-        off.append(fill)
-        fill += s
+    """Best-fit decreasing packing of items of ``sizes [U]`` (each <= row_len) into rows of ``row_len``:
+    the items, largest first (equal sizes in their given order), each go into the fullest row they fit
+    in, else into a new row -> ``(row [U], offset [U])`` long, rows numbered as they are opened, each
+    item after those placed in its row before it. Rows come out nearly full (the padding the
+    transformer computes on is what they leave free). One pass over U python ints, with the rows kept
+    by free slots (U <= robots in the batch, once per control step)."""
+    sizes_l = sizes.tolist()
+    by_free: list[list[int]] = [[] for _ in range(row_len + 1)]  # by_free[f]: the rows with f free slots
+    fill: list[int] = []  # tokens in each row
+    row, off = [0] * len(sizes_l), [0] * len(sizes_l)
+    for u in sorted(range(len(sizes_l)), key=lambda i: -sizes_l[i]):
+        s = sizes_l[u]
+        r = next((by_free[f].pop() for f in range(s, row_len + 1) if by_free[f]), None)
+        if r is None:
+            r = len(fill)
+            fill.append(0)
+        row[u], off[u] = r, fill[r]
+        fill[r] += s
+        by_free[row_len - fill[r]].append(r)
     dev = sizes.device
     return torch.tensor(row, dtype=torch.long, device=dev), torch.tensor(off, dtype=torch.long, device=dev)
 
@@ -71,7 +81,7 @@ class PackedNeighbourhoods:
         return out
 
     def own(self, x: Tensor) -> Tensor:
-        """``[R, row_len, A] -> [B * N, A]``: each ego's own token, the token of (its unit, itself)
+        """``[R, row_len, *F] -> [B * N, *F]``: each ego's own token, the token of (its unit, itself)
         (0 for every ego when no robot is valid)."""
         dev = x.device
         b_n, n = self.unit_of_ego.numel(), self.unit_rows.shape[1]
@@ -80,14 +90,15 @@ class PackedNeighbourhoods:
         ego_tok = tok_of[self.unit_of_ego, torch.arange(n, device=dev).repeat(b_n // max(n, 1))]
         if self.unit.numel():
             return x[self.row[ego_tok], self.slot[ego_tok]]
-        return x.new_zeros(b_n, x.shape[-1])  # no valid robot at all
+        return x.new_zeros(b_n, *x.shape[2:])  # no valid robot at all
 
 
 def pack_neighbourhoods(mask: Tensor, valid: Tensor, row_tokens: int, dedupe: bool,
                         key: Tensor | None = None) -> PackedNeighbourhoods:
     """The packed layout of the neighbourhoods of ``mask [B, N, N]`` among the ``valid [B, N]`` robots
-    (padding egos have an empty one), in rows of ``row_tokens`` tokens, or of the largest neighbourhood
-    if that is longer. ``dedupe``: egos with the same neighbourhood share one unit; with ``key [B, N, N]``
+    (padding egos have an empty one), in rows of ``row_tokens`` tokens, or of the smallest multiple of it
+    that holds the largest neighbourhood (MADP's is 16: CPU attention is several times slower on rows
+    whose length is not a multiple of 16). ``dedupe``: egos with the same neighbourhood share one unit; with ``key [B, N, N]``
     long (> 0 at members, 0 elsewhere), egos share one only where their rows of ``key`` are equal
     (what each ego holds of each member is then the same: :meth:`PackedNeighbourhoods.pack_view`)."""
     b, n = valid.shape
@@ -107,11 +118,12 @@ def pack_neighbourhoods(mask: Tensor, valid: Tensor, row_tokens: int, dedupe: bo
         unit_batch, unit_rows, unit_ego = ego_batch, rows, unit_of_ego
     # Pack: token t is robot tok_robot[t] as a member of unit tok_unit[t] (tokens grouped by unit,
     # robots ascending). Units are laid out whole, side by side, in rows of row_len tokens
-    # (next fit, in unit order); a row may mix swarms since units never see each other.
+    # (best-fit decreasing); a row may mix swarms since units never see each other.
     tok_unit, tok_robot = unit_rows.nonzero(as_tuple=True)
     tok_batch = unit_batch[tok_unit]
     sizes = unit_rows.sum(1)
-    row_len = max(row_tokens, int(sizes.max()) if sizes.numel() else 1, 1)
+    row_tokens = max(row_tokens, 1)
+    row_len = row_tokens * max(1, -(-(int(sizes.max()) if sizes.numel() else 1) // row_tokens))
     row_of_unit, off_of_unit = pack_rows(sizes, row_len)
     first_tok = sizes.cumsum(0) - sizes
     tok_row = row_of_unit[tok_unit]

@@ -2,8 +2,17 @@
 position embedding (RoPE) on queries and keys of the first layer(s) only.
 
 Shapes: ``x [B, N, d_model]`` robot tokens, ``mask [B, N, N]`` bool (True = may attend) or the
-same as an additive float bias ``[B, 1, N, N]`` (:func:`attention_bias`),
-``rope = (cos, sin)`` each ``[B, 1, N, D/2]`` (D = head dim), from :class:`RotaryEmbedding2D`.
+same as an additive float bias ``[B, 1, N, N]`` (:func:`attention_bias`), ``rope`` the rotations of
+:class:`RotaryEmbedding2D` (D = head dim) in either of two forms: ``(cos, sin)`` each ``[B, 1, N, D/2]``
+(what training and the ONNX export use, any dtype), or the same rotations as one complex table
+``[B, N, 1, D/2]`` (:meth:`RotaryEmbedding2D.rotations`; float32/float64 activations only), which a
+layer applies to the queries and keys of every head in one complex multiply (:func:`rotate_heads`),
+the sampling path's form.
+
+A linear layer may hold its weights in a lower precision than the residual stream (bfloat16 sampling,
+:meth:`madp.models.MADP.with_bf16_linears`): it casts its input to its weights' dtype; the query, key
+and value projections are cast back, so RoPE and attention run in the stream's dtype, and the output
+projections join the residual stream by type promotion. With one dtype throughout nothing is cast.
 
 All layers are pre-norm: ``x = x + Attn(LN(x))``, ``x = x + MLP(LN(x))`` with a LeakyReLU MLP.
 (The paper's eq. 7 writes the non-linearity around the residual sum, but states the pre-norm
@@ -21,6 +30,7 @@ from torch import Tensor, nn
 __all__ = [
     "RotaryEmbedding2D",
     "apply_rope",
+    "rotate_heads",
     "attention_bias",
     "MultiHeadAttention",
     "MLP",
@@ -30,7 +40,7 @@ __all__ = [
     "SpatialTransformerDecoder",
 ]
 
-Rope = tuple[Tensor, Tensor]
+Rope = tuple[Tensor, Tensor] | Tensor  # (cos, sin) [B, 1, N, D/2] or complex rotations [B, N, 1, D/2]
 
 
 class RotaryEmbedding2D(nn.Module):
@@ -59,14 +69,23 @@ class RotaryEmbedding2D(nn.Module):
         i = torch.arange(1, self.head_dim // 4 + 1, device=device, dtype=dtype)
         return 2 * math.pi * self.tau ** (-4.0 * i / self.head_dim)
 
-    def forward(self, pos_m: Tensor, dtype: torch.dtype = torch.float32) -> Rope:
-        """``pos_m [B, N, 2]`` -> ``(cos, sin)`` each ``[B, 1, N, D/2]``."""
+    def angles(self, pos_m: Tensor) -> Tensor:
+        """``pos_m [B, N, 2]`` -> the rotation angles ``[B, N, D/2]`` in rad, float64 (float32 on MPS)."""
         work = torch.float32 if pos_m.device.type == "mps" else torch.float64
         omega = self.frequencies(pos_m.device, work)
         p = pos_m.to(work)
-        ang = torch.cat([p[..., 0:1] * omega, p[..., 1:2] * omega], dim=-1)  # [B, N, D/2]
-        ang = ang.unsqueeze(1)
+        return torch.cat([p[..., 0:1] * omega, p[..., 1:2] * omega], dim=-1)
+
+    def forward(self, pos_m: Tensor, dtype: torch.dtype = torch.float32) -> tuple[Tensor, Tensor]:
+        """``pos_m [B, N, 2]`` -> ``(cos, sin)`` each ``[B, 1, N, D/2]``."""
+        ang = self.angles(pos_m).unsqueeze(1)
         return ang.cos().to(dtype), ang.sin().to(dtype)
+
+    def rotations(self, pos_m: Tensor, dtype: torch.dtype = torch.float32) -> Tensor:
+        """``pos_m [B, N, 2]`` -> the same rotations as :meth:`forward`, as one complex table
+        ``[B, N, 1, D/2]`` (``cos + i sin``, each part rounded to ``dtype``: float32 or float64)."""
+        ang = self.angles(pos_m).unsqueeze(-2)
+        return torch.complex(ang.cos().to(dtype), ang.sin().to(dtype))
 
 
 def attention_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
@@ -77,12 +96,37 @@ def attention_bias(mask: Tensor, dtype: torch.dtype) -> Tensor:
     return torch.zeros(mask.shape, dtype=dtype, device=mask.device).masked_fill_(~mask, float("-inf")).unsqueeze(1)
 
 
-def apply_rope(x: Tensor, rope: Rope) -> Tensor:
+def apply_rope(x: Tensor, rope: tuple[Tensor, Tensor]) -> Tensor:
     """Rotate ``x [B, H, N, D]`` pairwise by ``rope = (cos, sin) [B, 1, N, D/2]``."""
     cos, sin = rope
     xp = x.unflatten(-1, (-1, 2))
     x0, x1 = xp[..., 0], xp[..., 1]
     return torch.stack((x0 * cos - x1 * sin, x0 * sin + x1 * cos), dim=-1).flatten(-2)
+
+
+def rotate_heads(t: Tensor, rotations: Tensor) -> Tensor:
+    """Rotate ``t [B, N, M * D]`` (M heads of dimension D side by side, per token: the queries, or the
+    queries and keys, of every head) pairwise by the complex ``rotations [B, N, 1, D/2]`` of each token:
+    :func:`apply_rope`'s rotation as one complex multiply -> ``[B, N, M * D]``, contiguous. ``t`` may be
+    a slice of a wider last dimension (``qkv[..., :2 * d]``)."""
+    pairs = torch.view_as_complex(t.unflatten(-1, (-1, rotations.shape[-1], 2)))  # [B, N, M, D/2]
+    return torch.view_as_real(pairs * rotations).flatten(-3)
+
+
+def _linear(layer: nn.Linear, x: Tensor, back: bool = False) -> Tensor:
+    """``layer(x)``; a layer whose weights are in another dtype than ``x`` (bfloat16 in a float32 stream)
+    computes on ``x`` cast to it, and with ``back`` its result is cast back to ``x``'s dtype. Where the
+    dtypes agree this is ``layer(x)`` itself (under autocast too)."""
+    w = layer.weight.dtype
+    if x.dtype == w:
+        return layer(x)
+    y = layer(x.to(w))
+    return y.to(x.dtype) if back else y
+
+
+def _rotations(rope: Rope | None) -> bool:
+    """Whether ``rope`` is the complex table (token layout) rather than ``(cos, sin)``."""
+    return isinstance(rope, Tensor)
 
 
 class MultiHeadAttention(nn.Module):
@@ -114,30 +158,40 @@ class MultiHeadAttention(nn.Module):
     def project_kv(self, context: Tensor, rope: Rope | None = None) -> tuple[Tensor, Tensor]:
         """Keys/values of a cross-attention context ``[B, N, d]`` -> ``(k, v)`` each ``[B, H, N, D]``.
         Cacheable: the decoder's context (encoder memory) is fixed over the S denoising steps."""
-        k, v = self.kv(context).chunk(2, dim=-1)
-        k, v = self._heads(k), self._heads(v)
-        if rope is not None:
-            k = apply_rope(k, rope)
-        return k, v
+        kv = _linear(self.kv, context, back=True)
+        d = kv.shape[-1] // 2
+        if _rotations(rope):
+            return self._heads(rotate_heads(kv[..., :d], rope)), self._heads(kv[..., d:])
+        k, v = self._heads(kv[..., :d]), self._heads(kv[..., d:])
+        return (k if rope is None else apply_rope(k, rope)), v
 
     def forward(self, x: Tensor, mask: Tensor, rope: Rope | None = None,
                 kv: tuple[Tensor, Tensor] | None = None) -> Tensor:
         if self.cross:
             if kv is None:
                 raise ValueError("cross-attention needs kv=project_kv(context)")
-            q = self._heads(self.q(x))
-            k, v = kv
+            q, (k, v) = _linear(self.q, x, back=True), kv
+            if _rotations(rope):
+                q = self._heads(rotate_heads(q, rope))
+            else:
+                q = self._heads(q)
+                q = q if rope is None else apply_rope(q, rope)
         else:
-            q, k, v = (self._heads(t) for t in self.qkv(x).chunk(3, dim=-1))
-            if rope is not None:
-                k = apply_rope(k, rope)
-        if rope is not None:
-            q = apply_rope(q, rope)
+            qkv = _linear(self.qkv, x, back=True)
+            d = qkv.shape[-1] // 3
+            if _rotations(rope):  # queries and keys of every head in one multiply
+                qk = rotate_heads(qkv[..., :2 * d], rope)
+                q, k = self._heads(qk[..., :d]), self._heads(qk[..., d:])
+            else:
+                q, k = self._heads(qkv[..., :d]), self._heads(qkv[..., d:2 * d])
+                if rope is not None:
+                    q, k = apply_rope(q, rope), apply_rope(k, rope)
+            v = self._heads(qkv[..., 2 * d:])
         y = F.scaled_dot_product_attention(
             q, k, v, attn_mask=mask.unsqueeze(1) if mask.dtype == torch.bool else mask,
             dropout_p=self.dropout if self.training else 0.0,
         )
-        return self.proj(y.transpose(1, 2).flatten(-2))
+        return _linear(self.proj, y.transpose(1, 2).flatten(-2))
 
 
 class MLP(nn.Module):
@@ -150,7 +204,16 @@ class MLP(nn.Module):
         self.drop = nn.Dropout(dropout)
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.drop(self.proj(self.act(self.fc(x))))
+        h = _linear(self.fc, x)
+        # Without autograd the activation overwrites fc's output: one [.., ratio * d] buffer less per call.
+        h = self.act(h) if torch.is_grad_enabled() else F.leaky_relu_(h, self.act.negative_slope)
+        return self.drop(_linear(self.proj, h))
+
+
+def _residual(x: Tensor, branch: Tensor) -> Tensor:
+    """``x + branch``; without autograd in place, for an ``x`` the layer itself created (one
+    allocation less per residual)."""
+    return x + branch if torch.is_grad_enabled() else x.add_(branch)
 
 
 class EncoderLayer(nn.Module):
@@ -167,7 +230,7 @@ class EncoderLayer(nn.Module):
 
     def forward(self, x: Tensor, mask: Tensor, rope: Rope) -> Tensor:
         x = x + self.attn(self.ln1(x), mask, rope if self.use_rope else None)
-        return x + self.mlp(self.ln2(x))
+        return _residual(x, self.mlp(self.ln2(x)))
 
 
 class DecoderLayer(nn.Module):
@@ -195,8 +258,8 @@ class DecoderLayer(nn.Module):
     def forward(self, x: Tensor, mask: Tensor, rope: Rope, memory_kv: tuple[Tensor, Tensor]) -> Tensor:
         r = rope if self.use_rope else None
         x = x + self.self_attn(self.ln1(x), mask, r)
-        x = x + self.cross_attn(self.ln2(x), mask, r, kv=memory_kv)
-        return x + self.mlp(self.ln3(x))
+        x = _residual(x, self.cross_attn(self.ln2(x), mask, r, kv=memory_kv))
+        return _residual(x, self.mlp(self.ln3(x)))
 
 
 class SpatialTransformerEncoder(nn.Module):

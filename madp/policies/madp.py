@@ -58,6 +58,8 @@ def check_sampling_steps(model, sampling_steps: int) -> None:
 
 #: The frames MADP's model may see the world in (:class:`SamplingSettings`).
 FRAMES = ("world", "d4")
+#: The precisions MADP may sample in (:class:`SamplingSettings`).
+PRECISIONS = ("fp32", "bf16")
 
 
 @dataclass(frozen=True)
@@ -79,6 +81,11 @@ class SamplingSettings:
     world, not a controller robots could run), ``cell``, ``mppi``, ``explore`` (the default, K = 4) or ``medoid``
     (each robot on what it knows) and ``oracle_cell`` (``cell`` on the true map: an upper bound).
 
+    ``precision``: ``fp32``, or ``bf16``: the transformer's linear layers (nearly all of the sampling's
+    arithmetic) hold their weights in bfloat16 and compute in it, the rest in float32
+    (:meth:`madp.models.MADP.with_bf16_linears`); faster where the CPU has bfloat16 instructions, and
+    the actions differ from fp32's by the rounding that compounds over the S steps.
+
     Checked on construction; the defaults are the measured best."""
 
     sampler: str = DEFAULT_SAMPLER
@@ -88,22 +95,25 @@ class SamplingSettings:
     frame: str = "d4"
     select: str = DEFAULT_SELECT
     candidates: int = default_candidates(DEFAULT_SELECT)
+    precision: str = "fp32"
 
     def __post_init__(self) -> None:
         check_sampler(self.sampler, self.sampling_steps, self.eta)
         if self.frame not in FRAMES:
             raise SettingError("frame", f"expected one of {', '.join(FRAMES)}, got {self.frame!r}")
         check_selection(self.select, self.candidates)
+        if self.precision not in PRECISIONS:
+            raise SettingError("precision", f"expected one of {', '.join(PRECISIONS)}, got {self.precision!r}")
 
     @classmethod
     def of(cls, sampler: str | None = None, sampling_steps: int | None = None, eta: float = 0.0,
-           fixed_noise: bool = False, frame: str = "d4", select: str | None = None, candidates: int | None = None
-           ) -> "SamplingSettings":
+           fixed_noise: bool = False, frame: str = "d4", select: str | None = None, candidates: int | None = None,
+           precision: str = "fp32") -> "SamplingSettings":
         """The settings with ``None`` standing for the default sampler, S and selection rule, and for
         the rule's default K (:func:`madp.policies.select.default_candidates`)."""
         select = DEFAULT_SELECT if select is None else select
         return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,
-                   select, default_candidates(select) if candidates is None else candidates)
+                   select, default_candidates(select) if candidates is None else candidates, precision)
 
     def as_dict(self) -> dict:
         """What names the sampling in tables, recordings and a suite's config."""
@@ -128,6 +138,7 @@ class MADPPolicy:
             raise SettingError("mode", f"expected decentralized or centralized, got {mode!r}")
         self.sampling = sampling = sampling or SamplingSettings()
         check_sampling_steps(model, sampling.sampling_steps)
+        model = model.with_bf16_linears() if sampling.precision == "bf16" else model
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
         self.sampler, self.fixed_noise, self.frame = sampling.sampler, bool(sampling.fixed_noise), sampling.frame
         self.select, self.candidates = sampling.select, int(sampling.candidates)
@@ -230,7 +241,7 @@ class MADPPolicy:
         frames = {int(s): frame_element(seed, int(s)) if s >= 0 else -1 for s in np.unique(sent_step)}
         return np.vectorize(lambda s: frames[int(s)] == g, otypes=[bool])(sent_step) | (sent_step == env.steps)
 
-    @torch.no_grad()
+    @torch.inference_mode()  # the actions leave as numpy arrays
     def sample(self, env: CoverageEnv, num_samples: int = 1, generator: torch.Generator | None = None) -> np.ndarray:
         """``num_samples`` independent swarm actions [M, N, 2] (m/s) for the current state (each the
         one ``sampling.select`` keeps among its own K candidates).
@@ -257,7 +268,7 @@ class MADPPolicy:
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         return self.sample(env, 1)[0]
 
-    @torch.no_grad()
+    @torch.inference_mode()  # the actions leave as numpy arrays
     def act_batch(self, envs: list[CoverageEnv], generators: list[torch.Generator]) -> np.ndarray:
         """Actions ``[B, N, 2]`` (m/s) for B environments with the same N, sampled as one batch.
 

@@ -1,6 +1,6 @@
 """Compiled kernels of the simulator's hot paths (numba, single-threaded, ``fastmath`` off).
 
-Three kernels (docs/reports/2026-12-02-sim-speed.md):
+Its kernels (docs/reports/2026-12-02-sim-speed.md):
 
 - :func:`cell_sums` — each robot's Voronoi cell among its competitors, clipped to its box, walked
   column by column outward from the site (a convex cell's columns are one interval around it). Per
@@ -10,6 +10,7 @@ Three kernels (docs/reports/2026-12-02-sim-speed.md):
   the mean of their clipped polygon's vertices.
 - :func:`refresh_blocks` — the block prefix sums of the robots' own maps, recomputed under the
   sensor squares of the robots that moved (and the whole map once per episode).
+- :func:`column_prefix` — the world map's column prefix sums (ColumnPrefix), once per episode.
 - :func:`resize_windows` — the antialiased bilinear resize of 256² windows of the robots' padded
   maps to 32², as a banded separable filter read straight from the maps.
 
@@ -89,42 +90,10 @@ def _cell_lines(r, sites, points, idx, valid, boxes, sl_up, ic_up, sl_lo, ic_lo,
 
 
 @_inline
-def _envelope(x, sl_up, ic_up, nu, sl_lo, ic_lo, nl):
-    """(y_lower, y_upper) of the cell at column centre x: the highest lower bound, the lowest upper."""
-    y_up = np.inf
-    for k in range(nu):
-        v = ic_up[k] + sl_up[k] * x
-        if v < y_up:
-            y_up = v
-    y_lo = -np.inf
-    for k in range(nl):
-        v = ic_lo[k] + sl_lo[k] * x
-        if v > y_lo:
-            y_lo = v
-    return y_lo, y_up
-
-
-@_inline
 def _round_row(y, b0, b1):
     """floor(y + 0.5) clipped to the box's rows [b0, b1], as the library rounds a row bound."""
     v = np.floor(min(max(y, -1e9), 1e9) + 0.5)
     return int(min(max(v, b0), b1))
-
-
-@_inline
-def _column_rows(c, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows):
-    """Whether the cell reaches column c (its continuous bounds there are not empty); if so its
-    rounded rows [lo, hi) go to rows[c]."""
-    xc = c + 0.5
-    if xc < xlo or xc > xhi:
-        return False
-    y_lo, y_up = _envelope(xc, sl_up, ic_up, nu, sl_lo, ic_lo, nl)
-    if y_lo >= y_up:
-        return False
-    lo = _round_row(y_lo, b0, b1)
-    rows[c, 0] = lo
-    rows[c, 1] = max(_round_row(y_up, b0, b1), lo)
-    return True
 
 
 @_inline
@@ -211,6 +180,44 @@ def _vertex_mean(r, sites, points, live, nlive, boxes):
     return sumx / count, sumy / count
 
 
+WALK = 16  # columns whose bounds one pass of _walk takes at once
+
+
+@_inline
+def _walk(c, step, cx0, cx1, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows, env_up, env_lo):
+    """The cell's columns from column c on in direction ``step`` (±1) inside the box's [cx0, cx1):
+    returns the first one it does not reach (or the box's end), each one it reaches having its
+    rounded rows [lo, hi) in ``rows[c]``. The cell reaches column c when its centre x = c + 0.5 lies
+    in [xlo, xhi] and its bounds there are not empty: y_lower < y_upper, the highest lower bound
+    and the lowest upper one (``icpt + slope * x``). The bounds are taken WALK columns at a time
+    (``env_up``, ``env_lo``: WALK each), bound by bound, then the columns are checked in order."""
+    while cx0 <= c < cx1:
+        n = min(WALK, cx1 - c if step > 0 else c - cx0 + 1)
+        for i in range(n):
+            env_up[i] = np.inf
+            env_lo[i] = -np.inf
+        for k in range(nu):
+            a, b = ic_up[k], sl_up[k]
+            for i in range(n):
+                v = a + b * ((c + step * i) + 0.5)
+                env_up[i] = v if v < env_up[i] else env_up[i]
+        for k in range(nl):
+            a, b = ic_lo[k], sl_lo[k]
+            for i in range(n):
+                v = a + b * ((c + step * i) + 0.5)
+                env_lo[i] = v if v > env_lo[i] else env_lo[i]
+        for i in range(n):
+            col = c + step * i
+            xc = col + 0.5
+            if xc < xlo or xc > xhi or env_lo[i] >= env_up[i]:
+                return col
+            lo = _round_row(env_lo[i], b0, b1)
+            rows[col, 0] = lo
+            rows[col, 1] = max(_round_row(env_up[i], b0, b1), lo)
+        c += step * n
+    return c
+
+
 @_jit
 def cell_sums(sites, points, idx, valid, boxes, table, within, cum, with_cost, with_centroids, mass_eps):
     """Per-robot sums over Voronoi cells: (mass [R], centroid [R, 2], cost [R]) float64.
@@ -238,6 +245,8 @@ def cell_sums(sites, points, idx, valid, boxes, table, within, cum, with_cost, w
     for r in range(nr):
         ncol = max(ncol, int(boxes[r, 2]) + 1)
     rows = np.empty((max(ncol, 1), 2), np.int64)
+    env_up = np.empty(WALK)
+    env_lo = np.empty(WALK)
     for r in range(nr):
         nu, nl, xlo, xhi, nlive = _cell_lines(r, sites, points, idx, valid, boxes, sl_up, ic_up, sl_lo, ic_lo, live)
         sx, sy = sites[r, 0], sites[r, 1]
@@ -246,13 +255,9 @@ def cell_sums(sites, points, idx, valid, boxes, table, within, cum, with_cost, w
         b0, b1 = boxes[r, 1], boxes[r, 3]
         # the cell's columns: one interval around the site's column, walked outward
         c = int(np.floor(sx - 0.5))
-        while c >= cx0 and c < cx1 and _column_rows(c, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows):
-            c -= 1
-        left = max(c + 1, cx0)
-        c = int(np.floor(sx - 0.5)) + 1
-        while c < cx1 and c >= cx0 and _column_rows(c, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows):
-            c += 1
-        right = min(c, cx1)
+        left = _walk(c, -1, cx0, cx1, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows, env_up, env_lo)
+        right = _walk(c + 1, 1, cx0, cx1, sl_up, ic_up, nu, sl_lo, ic_lo, nl, xlo, xhi, b0, b1, rows, env_up, env_lo)
+        left, right = max(left + 1, cx0), min(right, cx1)
         # then summed in ascending column order (numpy's bincount order)
         s_m = 0.0
         s_x = 0.0
@@ -304,6 +309,34 @@ def block_row_sums(within, cum, robot, column, lo, hi):
         s0[k] = h0 - l0
         s1[k] = h1 - l1
     return s0, s1
+
+
+# --- the world map's column prefix sums -----------------------------------------------------------
+@_jit
+def column_prefix(map_xy, table):
+    """ColumnPrefix.table of a float64 map [W, H] into ``table [W, H + 1, 4]`` float64: slot k of row
+    j + 1 the sum of Φ·y^k (k = 0, 1, 2; y = j' + 0.5) over rows j' <= j of the column, row 0 and
+    slot 3 zero. Sequential sums from the first term, as numpy's ``cumsum`` of ``m``, ``m * y`` and
+    ``m * (y * y)`` (the same bits), all three in one pass."""
+    w, h = map_xy.shape
+    for c in range(w):
+        m = map_xy[c]
+        t = table[c]
+        t[0, :] = 0.0
+        s0 = s1 = s2 = 0.0
+        for j in range(h):
+            y = j + 0.5
+            v0 = m[j]
+            v1 = m[j] * y
+            v2 = m[j] * (y * y)
+            if j == 0:  # cumsum's first sum is its first term (-0.0 stays -0.0)
+                s0, s1, s2 = v0, v1, v2
+            else:
+                s0, s1, s2 = s0 + v0, s1 + v1, s2 + v2
+            t[j + 1, 0] = s0
+            t[j + 1, 1] = s1
+            t[j + 1, 2] = s2
+            t[j + 1, 3] = 0.0
 
 
 # --- sensing and the block prefix sums of the robots' own maps ----------------------------------------------------
@@ -369,11 +402,19 @@ def refresh_blocks(maps_padded, pad, within, tot, cum, cells, sensor_half):
 
 
 @_jit
-def refresh_all(maps_padded, pad, within, tot, cum):
-    """Every block of every robot's map (once per episode, when the block sums are first asked for)."""
-    n, w, nb = within.shape[0], within.shape[1], within.shape[2]
-    for r in range(n):
-        _refresh_columns(maps_padded, pad, within, tot, cum, r, 0, w, 0, nb, nb)
+def refresh_all(maps_padded, pad, within, tot, cum, lo, hi):
+    """Every block of every robot's map (once per episode, when the block sums are first asked for),
+    into ``within``, ``tot`` and ``cum`` that hold zeros: robot r's map may be non-zero only inside its
+    sensed box [lo[r], hi[r]) (padded cells), so only the columns and blocks that box touches are
+    computed; the others' sums are the zeros they hold (the same bits: sums of +0.0)."""
+    w, nb = within.shape[1], within.shape[2]
+    for r in range(within.shape[0]):
+        c0 = max(lo[r, 0] - pad, 0)
+        c1 = min(hi[r, 0] - pad, w)
+        y0 = max(lo[r, 1] - pad, 0)
+        y1 = min(hi[r, 1] - pad, w)
+        if c0 < c1 and y0 < y1:
+            _refresh_columns(maps_padded, pad, within, tot, cum, r, c0, c1, y0 // BLOCK, (y1 - 1) // BLOCK + 1, nb)
 
 
 @_jit

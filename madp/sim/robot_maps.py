@@ -8,7 +8,11 @@ world map (:class:`madp.robot.RobotAgent`).
 
 Maps are kept zero-padded by half a local window on every side, [N, W + S, W + S] float32 with
 S = local_map_size, so every sensor update and every local-map crop is one rectangular slice with
-no clipping (cells outside the world are zero in the world map too).
+no clipping (cells outside the world are zero in the world map too). They are written by
+:meth:`RobotMaps.record` (and :meth:`RobotMaps.sense`) alone, which keep each robot's sensed box
+(:attr:`RobotMaps.seen_lo`, :attr:`RobotMaps.seen_hi`): what reads a map whole (the block sums
+below, the resized local windows, the selection rules' block sums) reads only inside that box, the
+rest being zero. A map's memory is made when first written, in small pages (:func:`sparse_zeros`).
 
 For sums over rows of a robot's own map (DCVT's Voronoi cells) the maps also keep, once asked for,
 prefix sums along y in two levels: ``cum[n, c, k]`` = Σ over world rows < 16·k of (map,
@@ -20,6 +24,7 @@ moved to a new cell are recomputed.
 
 from __future__ import annotations
 
+import mmap
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +36,17 @@ from .observations import resize_windows, stack_observations
 
 #: Side (m) of the blocks of a robot's explored map (:attr:`RobotMaps.explored`).
 EXPLORED_BLOCK_M = 4
+
+
+def sparse_zeros(shape: tuple[int, ...], dtype) -> np.ndarray:
+    """A zero array of ``shape`` in the system's small pages, each made (and zeroed) when first written:
+    for the robots' maps, each written only where its robot has sensed (a 64-cell square per step
+    in a map of 1280² cells), where 2 MiB pages, which numpy asks for, would each be zeroed whole."""
+    count = int(np.prod(shape))
+    buf = mmap.mmap(-1, max(count * np.dtype(dtype).itemsize, 1))  # anonymous memory: zeros until written
+    if hasattr(mmap, "MADV_NOHUGEPAGE"):  # Linux
+        buf.madvise(mmap.MADV_NOHUGEPAGE)
+    return np.frombuffer(buf, dtype, count).reshape(shape)
 
 
 def robot_cells(positions_m: np.ndarray) -> np.ndarray:
@@ -67,7 +83,7 @@ class RobotMaps:
         if world_map_f32 is not None:
             self.world_padded = np.zeros((w + 2 * self.pad, w + 2 * self.pad), dtype=np.float32)
             self.world_padded[self.pad : self.pad + w, self.pad : self.pad + w] = world_map_f32
-        self.maps_padded = np.zeros((num_robots, w + 2 * self.pad, w + 2 * self.pad), dtype=np.float32)
+        self.maps_padded = sparse_zeros((num_robots, w + 2 * self.pad, w + 2 * self.pad), np.float32)
         self._cum: np.ndarray | None = None  # [N, W, W/16 + 1, 2] float64 sums of whole blocks below
         self._within: np.ndarray | None = None  # [N, W, W/16, 16, 2] float32 running sums in a block
         self._tot: np.ndarray | None = None  # [N, W, W/16, 2] float64 block totals
@@ -75,7 +91,8 @@ class RobotMaps:
         self._last_cells: np.ndarray | None = None
         self._last_lo = self._last_hi = np.zeros((num_robots, 2), dtype=np.int64)  # last sensed squares (padded)
         # Bounding box of what each robot has sensed, in padded coordinates: (x0, y0) [N, 2] and
-        # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by record() alone).
+        # (x1, y1) [N, 2]; its map is zero outside it (maps_padded is written by record() alone: a
+        # caller writing it otherwise widens the box to what it wrote).
         self.seen_lo = np.full((num_robots, 2), self.maps_padded.shape[1], dtype=np.int64)
         self.seen_hi = np.zeros((num_robots, 2), dtype=np.int64)
         # What each robot has looked at (the library's exploration map), in blocks of
@@ -154,15 +171,17 @@ class RobotMaps:
     # --- prefix sums along y, in blocks of 16 rows -------------------------------------------------
     def block_sums(self) -> tuple[np.ndarray, np.ndarray]:
         """(cum [N, W, W/16 + 1, 2] float64, within [N, W, W/16, 16, 2] float32), up to date: built
-        whole the first time, then recomputed under the sensor squares of the robots that moved
-        (:func:`madp.sim.kernels.refresh_blocks`, bit-identical to a fresh build)."""
+        the first time (inside each robot's sensed box: zero outside it), then recomputed under the
+        sensor squares of the robots that moved (:func:`madp.sim.kernels.refresh_blocks`,
+        bit-identical to a fresh build)."""
         if self._cum is None:
             n, w = len(self.maps_padded), self.world_size
             nb = w // BLOCK
-            self._within = np.empty((n, w, nb, BLOCK, 2), np.float32)
-            self._tot = np.empty((n, w, nb, 2))
+            self._within = np.zeros((n, w, nb, BLOCK, 2), np.float32)
+            self._tot = np.zeros((n, w, nb, 2))
             self._cum = np.zeros((n, w, nb + 1, 2))
-            kernels.refresh_all(self.maps_padded, self.pad, self._within, self._tot, self._cum)
+            kernels.refresh_all(self.maps_padded, self.pad, self._within, self._tot, self._cum, self.seen_lo,
+                                self.seen_hi)
             self._stale.clear()
         for cells in self._stale:
             kernels.refresh_blocks(self.maps_padded, self.pad, self._within, self._tot, self._cum, cells,

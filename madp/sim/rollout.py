@@ -9,14 +9,25 @@ executed) and the state after every step (:meth:`Hook.stepped`). ``madp rollout`
 ``madp eval`` (one environment or a batch) and ``madp datagen`` (expert and learner) all run this loop
 with their own hooks; the hooks here record cost curves, positions, actions, samples and timing
 (frames for videos: :class:`madp.video.Frames`).
+
+The environments of a batch step side by side on threads (:func:`step_threads` of them by default,
+at most one per environment): a step's work is in numba kernels that release the GIL, and each
+environment's step reads and writes its own state alone, so the results are those of stepping them
+one after another, bit for bit. Hooks may do their own work per environment on the same threads
+(:func:`for_each_env`, as :class:`Costs` does).
 """
 
 from __future__ import annotations
 
+import sys
 import time
+from concurrent.futures import Future, ThreadPoolExecutor, wait
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence, TypeVar
 
+import numba
 import numpy as np
 
 from .controllers import Controller
@@ -45,27 +56,95 @@ def act_alone(controller: Controller) -> Act:
     return lambda envs: controller(envs[0])[None]
 
 
+def step_threads() -> int:
+    """How many threads :func:`run` steps a batch of environments on by default: the process's torch
+    intra-op threads where torch is loaded (1 in ``madp eval``'s worker processes, which leave the
+    cores to each other), numba's thread count otherwise."""
+    torch = sys.modules.get("torch")
+    return max(1, int(torch.get_num_threads())) if torch is not None else max(1, numba.get_num_threads())
+
+
+T = TypeVar("T")
+_POOL: ContextVar[ThreadPoolExecutor | None] = ContextVar("madp_rollout_pool", default=None)
+
+
+@contextmanager
+def env_threads(num_envs: int, threads: int | None = None) -> Iterator[None]:
+    """While inside, :func:`for_each_env` runs on min(``threads``, ``num_envs``) threads
+    (``threads`` None: :func:`step_threads`); on the caller's thread alone when that is 1."""
+    if threads is not None and int(threads) < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    n = min(num_envs, step_threads() if threads is None else int(threads))
+    if n <= 1:
+        token = _POOL.set(None)
+        try:
+            yield
+        finally:
+            _POOL.reset(token)
+        return
+    with ThreadPoolExecutor(n, thread_name_prefix="madp-env") as pool:
+        token = _POOL.set(pool)
+        try:
+            yield
+        finally:
+            _POOL.reset(token)
+
+
+def for_each_env(fn: Callable[..., T], envs: Sequence[CoverageEnv], args: Sequence | None = None) -> list[T]:
+    """``[fn(env) for env in envs]`` (``[fn(env, arg) for env, arg in zip(envs, args)]`` with
+    ``args``), on the threads of the :func:`env_threads` in effect (one after another outside one).
+    ``fn`` must touch only its own environment's state. Every call runs even when one raises, on
+    threads or not; then the first error in the environments' order is raised."""
+    pool = _POOL.get()
+    calls = list(zip(envs)) if args is None else list(zip(envs, args))
+    if pool is None:
+        futures = [_called(fn, c) for c in calls]
+    else:
+        futures = [pool.submit(fn, *c) for c in calls]
+        wait(futures)
+    return [f.result() for f in futures]
+
+
+def _called(fn: Callable[..., T], args: tuple) -> Future:
+    """``fn(*args)`` called here, as a done future (its result or its error)."""
+    done: Future = Future()
+    try:
+        done.set_result(fn(*args))
+    except Exception as e:  # kept for the caller, who raises the first one
+        done.set_exception(e)
+    return done
+
+
+def _step(env: CoverageEnv, actions_mps: np.ndarray) -> None:
+    env.step(actions_mps)
+
+
 def run(envs: list[CoverageEnv], act: Act, hooks: Sequence[Hook] = (), steps: int | None = None,
-        drive: Callable[[list[CoverageEnv], np.ndarray], np.ndarray] | None = None) -> int:
+        drive: Callable[[list[CoverageEnv], np.ndarray], np.ndarray] | None = None, threads: int | None = None) -> int:
     """Step ``envs`` from their current state with ``act`` for ``steps`` control steps (None: until a
     hook ends the rollout). ``drive``: what the environments execute instead of the actions (default:
-    the actions). Returns the number of steps taken."""
-    for h in hooks:
-        h.start(envs)
-    t = 0
-    while steps is None or t < steps:
-        t0 = time.perf_counter()
-        u = act(envs)
-        act_s = time.perf_counter() - t0
-        if any([h.actions(t, envs, u, act_s) for h in hooks]):  # every hook sees the step
-            break
-        executed = u if drive is None else drive(envs, u)
-        for env, x in zip(envs, executed):
-            env.step(x)
-        t += 1
+    the actions). ``threads``: how many environments step at once (None: :func:`step_threads`; the
+    results do not depend on it). Returns the number of steps taken."""
+    with env_threads(len(envs), threads):
         for h in hooks:
-            h.stepped(t, envs)
+            h.start(envs)
+        t = 0
+        while steps is None or t < steps:
+            t0 = time.perf_counter()
+            u = act(envs)
+            act_s = time.perf_counter() - t0
+            if any([h.actions(t, envs, u, act_s) for h in hooks]):  # every hook sees the step
+                break
+            executed = u if drive is None else drive(envs, u)
+            for_each_env(_step, envs, list(executed))
+            t += 1
+            for h in hooks:
+                h.stepped(t, envs)
     return t
+
+
+def _normalized_cost(env: CoverageEnv) -> float:
+    return env.normalized_cost()
 
 
 class Costs(Hook):
@@ -79,8 +158,7 @@ class Costs(Hook):
         self.cost[:, 0] = 1.0
 
     def stepped(self, t, envs):
-        for i, env in enumerate(envs):
-            self.cost[i, t] = env.normalized_cost()
+        self.cost[:, t] = for_each_env(_normalized_cost, envs)
 
 
 class Positions(Hook):

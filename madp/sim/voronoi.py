@@ -25,6 +25,8 @@ those vertices exactly (every pairwise line intersection that satisfies all cons
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,14 +83,11 @@ class ColumnPrefix:
     """
 
     def __init__(self, map_xy: np.ndarray):
-        m = np.asarray(map_xy, dtype=np.float64)
+        m = np.ascontiguousarray(map_xy, dtype=np.float64)
         self.width, self.height = m.shape
-        y = np.arange(self.height, dtype=np.float64) + 0.5
-        t = np.zeros((self.width, self.height + 1, 4))
-        np.cumsum(m, axis=1, out=t[:, 1:, 0])
-        np.cumsum(m * y, axis=1, out=t[:, 1:, 1])
-        np.cumsum(m * (y * y), axis=1, out=t[:, 1:, 2])
-        self.table = t
+        # numpy allocates it (in 2 MiB pages where the system offers them: the kernel fills it whole)
+        self.table = np.empty((self.width, self.height + 1, 4))
+        kernels.column_prefix(m, self.table)  # numpy's cumsums of Φ, Φ·y, Φ·y², bit for bit
 
 
 _NO_TABLE = np.zeros((0, 1, 4))
@@ -115,6 +114,13 @@ def cell_sums(sites_m: np.ndarray, points_m: np.ndarray, idx: np.ndarray, valid:
         np.ascontiguousarray(boxes, dtype=np.float64), table, within, cum, with_cost, with_centroids, MASS_EPS)
 
 
+#: How many layouts :func:`world_competitors` keeps the answer for (a batch's environments, each
+#: asked twice per step: the expert's goals, then J after the step, of the same positions).
+COMPETITORS_KEPT = 64
+_competitors: OrderedDict[tuple, tuple] = OrderedDict()
+_competitors_lock = threading.Lock()
+
+
 def world_competitors(sites_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Each robot's competitors over the whole world: (points [P, 2], idx [N, M], valid [N, M],
     shared [N] bool or None), the Delaunay neighbours of its point.
@@ -122,8 +128,26 @@ def world_competitors(sites_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     Robots on one point share one cell (``shared`` marks every robot standing on the point of a
     lower-indexed one): its centroid is their goal too, but its mass and cost count once, for the
     lowest index. So J stays the integral of the squared distance to the nearest robot: without
-    this, Qhull leaves a duplicate site without neighbours and its "cell" would be the whole world."""
+    this, Qhull leaves a duplicate site without neighbours and its "cell" would be the whole world.
+
+    The answers for the last :data:`COMPETITORS_KEPT` layouts are kept: a layout asked for again is
+    not triangulated again, and gets the same arrays (which no caller writes to)."""
     sites_m = np.asarray(sites_m, dtype=np.float64)
+    key = (sites_m.shape, sites_m.tobytes())
+    with _competitors_lock:
+        kept = _competitors.get(key)
+        if kept is not None:
+            _competitors.move_to_end(key)
+            return kept
+    answer = _world_competitors(sites_m.copy())  # a copy: the caller may move its robots in place
+    with _competitors_lock:
+        _competitors[key] = answer
+        if len(_competitors) > COMPETITORS_KEPT:
+            _competitors.popitem(last=False)
+    return answer
+
+
+def _world_competitors(sites_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     s = sites_m[np.lexsort(sites_m.T)]  # a cheap test first: this runs every control step
     if not (s[1:] == s[:-1]).all(axis=1).any():
         nbr, valid = delaunay_neighbours(sites_m)

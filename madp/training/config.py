@@ -16,6 +16,11 @@ the teacher policy's DPM-Solver++(2M) does in ``distill_steps``: from the same p
 state, its predicted sample is fitted to the teacher's (:meth:`madp.models.MADP.one_step_loss`). It
 starts from the teacher's weights (unless ``init`` names others) and keeps the teacher's action
 statistics; it samples with ``--sampling-steps 1``.
+
+``comm_dropout`` P (MADP's DDPM training, either preset; default 0: off): each training sample, with
+probability P, loses links between its robots, as over a lossy network (:mod:`.comm_dropout`);
+validation drops links the same way, with its own fixed draws, so the validation loss (and the
+``best`` checkpoint) measures the objective trained.
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ class TrainConfig:
     compile: bool = False  # MADP through torch.compile (inductor): faster steps after a compile at the start
     distill: str = ""  # MADP: distil this policy file's sampler into one step (a model that predicts the sample)
     distill_steps: int = 3  # the teacher's DPM-Solver++(2M) steps S that the student learns to do in one
+    comm_dropout: float = 0.0  # MADP: a sample's chance of losing links (madp.training.comm_dropout); 0: none
 
     def __post_init__(self) -> None:
         if self.model not in ("madp", "lpac"):
@@ -100,6 +106,13 @@ class TrainConfig:
             raise SettingError("stop_after_minutes", f"expected a non-negative number, got {self.stop_after_minutes}")
         if not (self.lr > 0 and math.isfinite(self.lr)):
             raise SettingError("lr", f"expected a positive learning rate, got {self.lr}")
+        if isinstance(self.comm_dropout, bool) or not isinstance(self.comm_dropout, (int, float)) \
+                or not 0.0 <= self.comm_dropout <= 1.0:
+            raise SettingError("comm_dropout", f"expected a probability in [0, 1], got {self.comm_dropout!r}")
+        object.__setattr__(self, "comm_dropout", float(self.comm_dropout))
+        if self.comm_dropout and (self.model != "madp" or self.distill):
+            raise SettingError("comm_dropout", message="comm_dropout: only MADP's DDPM training drops links (not "
+                                                        "LPAC-K3, not a distillation)")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -2,8 +2,9 @@
 
 One loop for both models (nanoGPT-style: read it top to bottom). Determinism: the data order is a
 function of (seed, epoch) (see :mod:`.stream`), the diffusion noise of step s is drawn from a
-generator seeded with (seed, s), and the checkpoint holds everything else (weights, optimizer,
-EMA, position, counters), so a resumed run continues exactly as an uninterrupted one.
+generator seeded with (seed, s), its communication dropout (``--comm-dropout``) from another
+(:func:`.loss.step_links`), and the checkpoint holds everything else (weights, optimizer, EMA,
+position, counters), so a resumed run continues exactly as an uninterrupted one.
 
 Run directory::
 
@@ -43,7 +44,7 @@ from madp.models import EMA, MADP, lpac_config, madp_config
 from .checkpoint import load_checkpoint_state, recover_checkpoints, save_checkpoint
 from .config import TrainConfig, learning_rate
 from .distill import load_teacher, teacher_action_stats
-from .loss import batch_loss, step_generator, step_noise
+from .loss import TRAIN_STREAM, VAL_LINKS_STREAM, VAL_STREAM, batch_loss, step_generator, step_links, step_noise
 from .optim import make_optimizer
 from .progress import EpochBar
 from .stream import ShardStream, StreamPosition, collate_swarms
@@ -94,6 +95,12 @@ class Trainer:
             raise InputError(f"{cfg.data}/manifest.json: no action statistics (regenerate with madp datagen)")
         for i, (d, m) in enumerate(zip(cfg.datasets, self.manifests)):
             check_shards(d, m, ("train", "val") if i == 0 else ("train",))  # one read each, before use
+        if cfg.comm_dropout:  # the neighbour channels are redrawn with the model's r_c: the data's must be it
+            for d, m in zip(cfg.datasets, self.manifests):
+                r_c = m.params.get("params", {}).get("comm_radius_m")
+                if r_c != madp_config(cfg.preset).comm_radius_m:
+                    raise InputError(f"{d}/manifest.json: comm_radius_m = {r_c}, but --comm-dropout redraws the "
+                                     f"neighbour channels with the model's {madp_config(cfg.preset).comm_radius_m}")
         for d, m in zip(cfg.more_data, self.manifests[1:]):
             sim, sim0 = m.params.get("params", {}), self.manifest.params.get("params", {})
             if sim.get("world_size") != sim0.get("world_size"):  # swarm sizes may differ (batched by size)
@@ -291,13 +298,15 @@ class Trainer:
         total, n = 0.0, 0
         with ctx:
             for i, batch in enumerate(self._val_batches()):
-                g = step_generator(self.cfg.seed, i, self.device, stream=1)
+                g = step_generator(self.cfg.seed, i, self.device, stream=VAL_STREAM)
                 draws = None
                 if self.cfg.model == "madp":
                     k, noise = step_noise(self.raw, g, batch, 1)
                     draws = (k[0], noise[0])
+                links = step_links(self.cfg, i, self.device, batch, 1, stream=VAL_LINKS_STREAM)
                 b = batch["obs"].shape[0]
-                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, draws, self.device, self.teacher)) * b
+                total += float(batch_loss(self.raw, self.raw, batch, self.cfg, draws, self.device, self.teacher,
+                                          None if links is None else links[0])) * b
                 n += b
         self.raw.train()
         return total / max(n, 1)
@@ -373,9 +382,10 @@ class Trainer:
                     break
                 micro = self.batches_done % accum
                 if micro == 0:  # a new optimizer step
-                    g = step_generator(cfg.seed, self.step, self.device, stream=0)
+                    g = step_generator(cfg.seed, self.step, self.device, stream=TRAIN_STREAM)
                     step_draws = step_noise(self.raw, g, batch, self.world * accum, self.max_robots) \
                         if cfg.model == "madp" else None
+                    links = step_links(cfg, self.step, self.device, batch, self.world * accum, self.max_robots)
                     self.opt.zero_grad(set_to_none=True)
                     loss_sum = 0.0
                 part = self.rank * accum + micro
@@ -383,7 +393,8 @@ class Trainer:
                 last = micro == accum - 1
                 sync = self.model.no_sync() if self.ddp and not last else nullcontext()
                 with sync:  # DDP averages the gradients over ranks at the step's last micro-batch
-                    loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device, self.teacher)
+                    loss = batch_loss(self.model, self.raw, batch, cfg, draws, self.device, self.teacher,
+                                      None if links is None else links[part])
                     (loss / accum).backward()
                 self.batches_done += 1
                 seen += batch["obs"].shape[0] * self.world

@@ -160,6 +160,7 @@ def test_oracle_cell_is_the_cell_rule_on_the_true_map():
     assert np.abs(r0(other, True) - r0(base, True)).min() > 0  # it sees the unsensed change
     full = CoverageEnv(_scenario(ROBOTS))
     full.maps.maps_padded[:] = full.maps.world_padded  # every robot has sensed the whole world
+    full.maps.seen_lo[:], full.maps.seen_hi[:] = 0, full.maps.maps_padded.shape[1]  # (its sensed box)
     np.testing.assert_array_equal(r0(full, True), r0(full, False))
     np.testing.assert_array_equal(select_actions("oracle_cell", base, cands),
                                   np.take_along_axis(cands.transpose(1, 0, 2), local_cell_costs(

@@ -41,6 +41,7 @@ def _queries(w: int, n: int, rng):
 def _fresh(rm: RobotMaps, world: np.ndarray, sensor: int, local: int) -> RobotMaps:
     f = RobotMaps(world, len(rm.maps_padded), sensor, local)
     f.maps_padded[:] = rm.maps_padded
+    f.seen_lo[:], f.seen_hi[:] = rm.seen_lo, rm.seen_hi  # what it wrote: the sensed boxes
     return f
 
 

@@ -127,3 +127,26 @@ def test_ddp_with_nccl_in_a_single_gpu_world(dataset, tmp_path):
     d_plain = torch.cat([(plain[k] - init[k]).flatten() for k in trained])
     assert float(d_plain.norm()) > 1e-3  # three steps of lr 1e-3 moved the weights
     assert float((d_ddp - d_plain).norm() / d_plain.norm()) < 0.1
+
+
+def test_comm_dropout_on_the_gpu(dataset, tmp_path):
+    """--comm-dropout draws its links on the GPU (a CUDA generator), the neighbour channels computed
+    there equal the simulator's bit for bit, and a run with dropout trains to finite losses."""
+    import numpy as np
+
+    from madp.sim.observations import neighbour_maps
+    from madp.training.comm_dropout import draw_links, neighbour_channels
+    from madp.training.loss import step_generator
+
+    rng = np.random.default_rng(0)
+    for spread in (10.0, 60.0, 300.0):
+        pos = rng.uniform(0.0, spread, (40, 2)) + 50.0
+        got = neighbour_channels(torch.from_numpy(pos)[None].cuda(), 256.0)
+        assert got.is_cuda
+        np.testing.assert_array_equal(got[0].cpu().numpy(), neighbour_maps(pos, 256.0))
+    links = draw_links(step_generator(0, 0, torch.device("cuda")), 16, 4, 1.0)
+    assert links.is_cuda and not links.all() and torch.equal(links, links.transpose(1, 2))
+    train(config(dataset, tmp_path / "run", stop_after_steps=3, comm_dropout=0.5), progress=False)
+    got = losses(tmp_path / "run")
+    assert len(got) == 3 and all(torch.isfinite(torch.tensor(got)))
+    assert json.loads((tmp_path / "run" / "config.json").read_text())["device"].startswith("cuda")
