@@ -55,6 +55,7 @@ class RobotAgent:
         self.step: int | None = None
         self.position_m: np.ndarray | None = None
         self.start_m: np.ndarray | None = None
+        self.anchor_m: np.ndarray | None = None  # where it last heard a neighbour (its first position until then)
         self.observation: np.ndarray | None = None
         self.view: LocalViews | None = None
         self._message: Message | None = None
@@ -120,7 +121,9 @@ class RobotAgent:
             start, offset = self.start_m[None], own - self.start_m[None]
         else:
             start, offset = own, np.zeros_like(own)
-        view = map_views(self.maps, own, start, offset, known[None], held[None])
+        if self.anchor_m is None or known.any():
+            self.anchor_m = self.position_m.copy()
+        view = map_views(self.maps, own, start, offset, known[None], held[None], anchor_m=self.anchor_m[None])
         return map_prior(self.maps, view) if self.runtime.rule == "explore" else view
 
     def _beacon_positions(self, beacons) -> np.ndarray:

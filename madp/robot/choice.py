@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
 __all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
-           "map_prior", "map_views", "medoid_index", "mppi_weights"]
+           "lone_radius_m", "map_prior", "map_views", "medoid_index", "mppi_weights"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
@@ -41,7 +41,9 @@ class LocalViews:
     GRID_M × GRID_M cells (float64); ``origin_m`` [R, 2]: the window's lower corner, so block (a, b)
     has its centre at ``origin_m + GRID_M * (a, b) + GRID_M / 2``;
     ``neighbours_m`` [R, M, 2]: the latest positions of its neighbours within r_c, padded;
-    ``valid`` [R, M]: which of them are real."""
+    ``valid`` [R, M]: which of them are real; ``anchor_m`` [R, 2]: where it last heard a neighbour
+    (its position estimate at that step; its first one until then), which bounds the cell of a robot
+    that hears no one (:func:`local_cell_costs`). None: its own position."""
 
     start_m: np.ndarray
     offset_m: np.ndarray
@@ -49,6 +51,13 @@ class LocalViews:
     origin_m: np.ndarray
     neighbours_m: np.ndarray
     valid: np.ndarray
+    anchor_m: np.ndarray | None = None
+
+
+def lone_radius_m(params: SimParams) -> float:
+    """The radius (m) of the disc a robot's cell is bounded by when it hears no one: the disc of the
+    world's area shared among N robots, ``world_size / sqrt(π N)`` (102 m for the paper's 32)."""
+    return params.world_size / float(np.sqrt(np.pi * params.num_robots))
 
 
 def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
@@ -62,16 +71,17 @@ def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
     exact = own is env.positions_m  # no position noise: the motion rule's own start and offset
     start_m, offset_m = (env.start_m, env.offset_m) if exact else (own, np.zeros_like(own))
     known, held_m = env.neighbour_view()
-    return map_views(env.maps, own, start_m, offset_m, known, held_m, true_map)
+    return map_views(env.maps, own, start_m, offset_m, known, held_m, true_map, env.anchor_m)
 
 
 def map_views(maps: RobotMaps, own_m: np.ndarray, start_m: np.ndarray, offset_m: np.ndarray, known: np.ndarray,
-              held_m: np.ndarray, true_map: bool = False) -> LocalViews:
+              held_m: np.ndarray, true_map: bool = False, anchor_m: np.ndarray | None = None) -> LocalViews:
     """The :class:`LocalViews` rows of the R robots of ``maps`` (one row each, from that robot's map
     alone): its map in the ``local_size`` window around its position estimate ``own_m [R, 2]`` (zero
     outside the world), its position as the motion rule integrates it, ``start_m + offset_m`` [R, 2],
     and the neighbours it knows of: ``held_m [R, M, 2]`` where ``known [R, M]``, kept in their order.
-    ``true_map``: the maps' world map in the same window instead."""
+    ``true_map``: the maps' world map in the same window instead. ``anchor_m [R, 2]``: where each
+    robot last heard a neighbour (None: its position estimate)."""
     s = maps.local_size
     g = s // GRID_M
     cells = robot_cells(own_m)
@@ -89,7 +99,8 @@ def map_views(maps: RobotMaps, own_m: np.ndarray, start_m: np.ndarray, offset_m:
     order = np.argsort(~known, axis=1, kind="stable")[:, :m]  # each robot's neighbours first
     valid = np.take_along_axis(known, order, 1)
     neighbours_m = np.take_along_axis(held_m, order[:, :, None], 1)
-    return LocalViews(start_m, offset_m, weights, (cells - s // 2).astype(np.float64), neighbours_m, valid)
+    anchor_m = np.array(own_m if anchor_m is None else anchor_m, dtype=np.float64).reshape(len(own_m), 2)
+    return LocalViews(start_m, offset_m, weights, (cells - s // 2).astype(np.float64), neighbours_m, valid, anchor_m)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -346,12 +357,31 @@ def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimPara
 
     Robot r moves to y = :func:`madp.sim.env.move` of its own position; its cell is the set of
     grid points of its window closer to y than to every valid neighbour (ties: its own); the cost is
-    ``sum over the cell of weight · |q − y|²`` (SPEC's J restricted to its own cell, on its own map,
-    on a grid of GRID_M m: each block's mass at the block's centre). Uses ``views`` and the motion
-    constants of ``params`` only."""
+    ``sum over the cell of weight · |q − y|²`` (J restricted to its own cell, on its own map,
+    on a grid of GRID_M m: each block's mass at the block's centre). A robot that holds no neighbour
+    cannot bound its cell by anyone: its cell is the disc of :func:`lone_radius_m` around its
+    ``anchor_m`` (where it last heard one), so that alone it covers the share it would expect rather
+    than chase the importance the whole swarm is after. Uses ``views`` and the motion constants and
+    N of ``params`` only."""
     y, _ = move(views.start_m[:, None], views.offset_m[:, None], actions_mps, params)  # [R, K, 2]
-    return _cell_costs(np.ascontiguousarray(y, dtype=np.float64), views.weights, views.origin_m,
+    return _cell_costs(np.ascontiguousarray(y, dtype=np.float64), _lone_bounded(views, params), views.origin_m,
                        np.ascontiguousarray(views.neighbours_m, dtype=np.float64), views.valid, GRID_M)
+
+
+def _lone_bounded(views: LocalViews, params: SimParams) -> np.ndarray:
+    """``views.weights`` [R, G, G] with the blocks of every robot that holds no valid neighbour zeroed
+    where their centre is farther than :func:`lone_radius_m` from its anchor (the rows of robots that
+    hold one are the same array's)."""
+    lone = ~views.valid.any(1)
+    if views.anchor_m is None or not lone.any():
+        return views.weights
+    g = views.weights.shape[1]
+    centre = np.arange(g) * GRID_M + GRID_M / 2  # [G]: block centres relative to the window's corner
+    rel = views.origin_m[lone] - views.anchor_m[lone]  # [L, 2]
+    d2 = (rel[:, 0, None, None] + centre[None, :, None]) ** 2 + (rel[:, 1, None, None] + centre[None, None, :]) ** 2
+    out = views.weights.copy()
+    out[lone] = np.where(d2 <= lone_radius_m(params) ** 2, out[lone], 0.0)
+    return out
 
 
 def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np.ndarray:

@@ -259,7 +259,7 @@ class RobotRuntime:
         nbr[0, :len(neighbours_m)] = neighbours_m
         valid = np.zeros((1, m), bool)
         valid[0, :len(neighbours_m)] = True
-        row = LocalViews(view.start_m, view.offset_m, view.weights, view.origin_m, nbr, valid)
+        row = LocalViews(view.start_m, view.offset_m, view.weights, view.origin_m, nbr, valid, view.anchor_m)
         costs = local_cell_costs(row, candidates_mps[None], self.params)
         if self.rule == "mppi":
             return np.einsum("k,kd->d", mppi_weights(costs)[0], candidates_mps)

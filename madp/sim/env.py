@@ -93,6 +93,7 @@ class CoverageEnv:
         self._record_history()
         self.steps = 0
         self.network: Network | None = None
+        self.anchor_m: np.ndarray | None = None  # where each robot last heard a neighbour (:meth:`_beacon`)
         if self.network_settings is not None:
             seed = self.scenario.seed if self.scenario.seed is not None else 0
             self.network = Network(self.network_settings, self.num_robots, p.comm_radius_m, p.world_size, seed)
@@ -129,6 +130,8 @@ class CoverageEnv:
             self.network.record(self.steps, self.positions_m)
             self._estimates = self.network.estimates(self.steps, self.positions_m)
             self._received = self.network.exchange("position", self.steps, self._estimates)
+        heard = self.neighbour_view()[0].any(1)  # its anchor: its estimate when it hears a neighbour (its first until then)
+        self.anchor_m = np.where(heard[:, None], self._estimates, self._estimates if self.anchor_m is None else self.anchor_m)
 
     def _record_history(self) -> None:
         # The library's deque: when full it drops the oldest entry *instead of* adding the new one.
