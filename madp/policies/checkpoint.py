@@ -25,6 +25,9 @@ from madp.models import MADP, LPACConfig, MADPConfig
 from .parts import read_parts
 
 SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
+#: Names of the weights of a policy file's map prior (the ``value`` rule's network) start with this;
+#: its config is the metadata key ``map_prior``.
+MAP_PRIOR_PREFIX = "map_prior."
 
 
 def shipped_checkpoint(kind: str) -> Path | None:
@@ -74,9 +77,37 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
         meta = {k: json.loads(v) for k, v in metadata.items() if k not in ("kind", "config")}
     except (ValueError, TypeError, KeyError, AttributeError) as e:
         raise InputError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
+    state = {k: v for k, v in state.items() if not k.startswith(MAP_PRIOR_PREFIX)}  # load_map_prior's
+    meta.pop("map_prior", None)
     load_weights(model, state, path, f"the {kind} config it carries")
     meta["kind"], meta["config"] = kind, model.config.to_dict()  # today's names, whatever the file's age
     return model.to(device).eval(), meta
+
+
+def load_map_prior(path: str | Path, device: str | torch.device = "cpu"):
+    """The map prior a MADP policy file carries (:class:`madp.models.map_prior.MapPrior`, in eval
+    mode), or None when it carries none; one-line errors for a damaged file or prior."""
+    from madp.models.map_prior import MapPrior, MapPriorConfig
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            text = (f.metadata() or {}).get("map_prior")
+    except Exception as e:
+        raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+    if text is None:
+        return None
+    try:
+        net = MapPrior(MapPriorConfig.from_dict(json.loads(text)))
+    except (ValueError, TypeError, KeyError) as e:
+        raise InputError(f"{path}: malformed map_prior metadata ({type(e).__name__})") from None
+    state = {k[len(MAP_PRIOR_PREFIX):]: v for k, v in read_weights(path, device).items() if k.startswith(MAP_PRIOR_PREFIX)}
+    if not all(torch.isfinite(v).all() for v in state.values()):
+        raise InputError(f"{path}: the map prior's weights hold NaN or infinity")
+    load_weights(net, state, path, "the map prior its metadata describes")
+    return net.to(device).eval()
 
 
 def read_weights(path: Path, device: str | torch.device = "cpu") -> dict:

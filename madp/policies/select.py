@@ -24,6 +24,10 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   own sensor has covered) counts as holding the mean importance per cell of the blocks of its window
   it has explored (any equal mass when those hold none: the ranking is then pure exploration).
   The cell's cost then also falls by moving toward the unexplored part of the cell.
+* ``value``: ``explore`` with a learned prior in place of the mean: each unexplored block of the
+  robot's window counts at the importance its policy file's map prior
+  (:class:`madp.models.map_prior.MapPrior`, ``madp value train``) predicts from the window, and the
+  candidate of lowest local cell cost on that map is kept. Needs a policy file that carries one.
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
@@ -46,12 +50,12 @@ import numpy as np
 
 from madp.errors import SettingError
 from madp.robot.choice import (GRID_M, MPPI_TEMPERATURE, LocalViews, explore_prior, local_cell_costs, local_views,
-                               medoid_index, mppi_weights)
+                               medoid_index, mppi_weights, unexplored_blocks)
 from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
@@ -86,11 +90,22 @@ def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
     return np.array([coverage_cost(env.prefix, p) for p in pos])
 
 
-def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) -> np.ndarray:
+def value_views(env: CoverageEnv, views: LocalViews, map_prior) -> LocalViews:
+    """``views`` with the ``value`` rule's weights: each robot's unexplored blocks inside the world
+    given ``map_prior``'s prediction (:func:`madp.models.map_prior.prior_weights`)."""
+    from madp.models.map_prior import prior_weights, window_masks
+
+    inside = window_masks(views.origin_m, views.weights.shape[1], GRID_M, env.params.world_size)
+    return replace(views, weights=prior_weights(map_prior, views.weights, unexplored_blocks(env.maps, views), inside,
+                                                GRID_M))
+
+
+def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, map_prior=None) -> np.ndarray:
     """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
     (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
     ``mppi`` only each robot's :func:`local_views`; ``medoid`` only each robot's own candidates;
-    ``explore`` those and its own explored map; ``oracle_cell`` the true-map views."""
+    ``explore`` those and its own explored map; ``value`` those and ``map_prior``
+    (:class:`madp.models.map_prior.MapPrior`); ``oracle_cell`` the true-map views."""
     if select == "none":
         return candidates_mps[0]
     if select == "oracle":
@@ -101,8 +116,13 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray) ->
     views = local_views(env, true_map=select == "oracle_cell")
     if select == "explore":
         views = explore_prior(env, views)
+    if select == "value":
+        if map_prior is None:
+            raise SettingError("select", "value scores candidates on a learned map prior: expected a policy file "
+                                         "that carries one (madp value train)")
+        views = value_views(env, views, map_prior)
     costs = local_cell_costs(views, per_robot, env.params)
-    if select in ("cell", "explore", "oracle_cell"):
+    if select in ("cell", "explore", "oracle_cell", "value"):
         return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
     if select == "mppi":
         return np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
 __all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
-           "lone_radius_m", "map_prior", "map_views", "medoid_index", "mppi_weights"]
+           "lone_radius_m", "map_prior", "map_views", "medoid_index", "mppi_weights", "unexplored_blocks"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
@@ -165,6 +165,13 @@ def map_prior(maps: RobotMaps, views: LocalViews) -> LocalViews:
     are kept by the world's 8 symmetries, so the choice is exactly equivariant."""
     corner = views.origin_m.astype(np.int64) + maps.pad  # [N, 2]: each window's first cell, padded
     return replace(views, weights=_prior_weights(maps.explored, corner, views.weights, maps.pad, maps.world_size))
+
+
+def unexplored_blocks(maps: RobotMaps, views: LocalViews) -> np.ndarray:
+    """``[R, G, G]`` bool: the blocks of each robot's window inside the world that it has not explored
+    (:func:`map_prior`'s rule: not every cell of the block explored)."""
+    corner = views.origin_m.astype(np.int64) + maps.pad
+    return _prior_weights(maps.explored, corner, np.zeros_like(views.weights), maps.pad, maps.world_size) > 0
 
 
 @numba.njit(cache=True, nogil=True)
