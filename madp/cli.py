@@ -28,7 +28,7 @@ scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Sc
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 # MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; docs/concepts/sampling.md): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable).")
+SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; docs/concepts/sampling.md): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable) | value (explore with the policy file's learned map prior in place of the mean: madp value train).")
 CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
@@ -303,7 +303,9 @@ def _add_commands() -> None:
     from madp.cli_data import dataset_import_cmd  # madp dataset import: a run's log back into data
     from madp.cli_report import report_cmd  # madp eval report: the documentation's results tables
     from madp.cli_swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
+    from madp.cli_value import value_app  # madp value: the value rule's learned map prior
     app.add_typer(bench_app, name="bench")
+    app.add_typer(value_app, name="value")
     dataset_app.command("import")(dataset_import_cmd)
     eval_app.command("report")(report_cmd)
     app.command("swarm")(swarm_cmd)

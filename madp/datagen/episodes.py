@@ -1,5 +1,11 @@
 """Run the clairvoyant expert (or a learner it relabels, :mod:`.relabel`) on one scenario and record
-samples (U0, X, O)."""
+samples (U0, X, O).
+
+A shard's episodes run one after another, except with a MADP policy to relabel: then
+:func:`shard_episodes` runs them in batches of :data:`BATCH_EPISODES` in lockstep
+(:func:`record_batch`), the policy called once per step for the whole batch. Each episode is the one
+it would be alone, up to the float rounding of the policy's batched actions; the batches are a fixed
+function of the shard, so a shard's bytes do not depend on the machine or the number of workers."""
 
 from __future__ import annotations
 
@@ -11,10 +17,15 @@ import numpy as np
 from madp.data_schema import Episode
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
 from madp.sim.launch import draw_launch
-from madp.sim.rollout import Hook, act_alone, run
+from madp.sim.rollout import Hook, act_alone, for_each_env, run
 
 from .plan import DatagenConfig, ShardTask, episode_id, scenario_seed
-from .relabel import learner_driver
+from .relabel import batches, learner_batch_driver, learner_driver
+
+#: Episodes of a relabelling shard that run in lockstep (:func:`record_batch`), on every machine
+#: alike: the rounding of the policy's batched actions, and so the bytes, depend on it.
+BATCH_EPISODES = 8
+
 
 class EpisodeRecorder(Hook):
     """The rollout hook (:mod:`madp.sim.rollout`) of :func:`record_episode`: records a sample at every
@@ -88,10 +99,72 @@ def episode_scenario(cfg: DatagenConfig, seed: int) -> Scenario:
     return replace(scenario, robots_m=draw_launch(rng, cfg.launch, cfg.params.num_robots, cfg.params.world_size))
 
 
+def full_episode_samples(cfg: DatagenConfig) -> int:
+    """The samples of an episode that runs all ``max_steps`` steps (every relabelling episode, unless a
+    shard's budget cuts it): t = 0, r, 2r, ... and t = max_steps (r = ``record_every``)."""
+    return cfg.max_steps // cfg.record_every + 1 + int(cfg.max_steps % cfg.record_every != 0)
+
+
+class LockstepRecorder(Hook):
+    """The rollout hook of :func:`record_batch`: one :class:`EpisodeRecorder` per environment, each
+    shown its own environment's steps until it ends its episode (``live``: the episodes not ended,
+    in order); ends the rollout when every episode has ended."""
+
+    def __init__(self, recorders: list[EpisodeRecorder]):
+        self.recorders = recorders
+        self.live = list(range(len(recorders)))
+
+    def actions(self, t, envs, actions, act_s):
+        self.live = [b for b in self.live if not self.recorders[b].actions(t, [envs[b]], actions[b:b + 1], act_s)]
+        return not self.live
+
+
+def _expert_action(env: CoverageEnv, expert: ClairvoyantCVT) -> np.ndarray:
+    return expert(env)
+
+
+def record_batch(
+    scenarios: list[Scenario],
+    cfg: DatagenConfig,
+    ep_ids: list[int],
+    max_samples: list[int],
+    on_sample: Callable[[], None] | None = None,
+) -> list[Episode]:
+    """:func:`record_episode` of B relabelling episodes (``cfg.policy`` a MADP policy:
+    :func:`madp.datagen.relabel.batches`) run in lockstep: episode b of ``scenarios[b]``, id
+    ``ep_ids[b]``, at most ``max_samples[b]`` samples. At every step the expert labels each episode
+    still running and :func:`madp.datagen.relabel.learner_batch_driver` moves them (the policy
+    called once for the episodes whose draw chose it); an episode that reaches its ``max_samples``
+    stops recording (its swarm is no longer driven by the learner) while the others run on, and the
+    rollout ends when every episode has ended. Each episode is the one :func:`record_episode` would
+    record, up to the float rounding of the policy's batched actions."""
+    envs = [CoverageEnv(s) for s in scenarios]
+    experts = [ClairvoyantCVT() for _ in scenarios]
+    lockstep = LockstepRecorder([EpisodeRecorder(e, cfg, m, False, on_sample) for e, m in zip(experts, max_samples)])
+    driver = learner_batch_driver(cfg.policy, [s.seed for s in scenarios])
+
+    def act(envs: list[CoverageEnv]) -> np.ndarray:
+        u = np.zeros((len(envs), envs[0].num_robots, 2))
+        live = lockstep.live
+        u[live] = for_each_env(_expert_action, [envs[b] for b in live], [experts[b] for b in live])
+        return u
+
+    run(envs, act, [lockstep], drive=lambda envs, u: driver(envs, u, lockstep.live))
+    return [rec.episode(i, s.seed, env.world_map_f32)
+            for rec, i, s, env in zip(lockstep.recorders, ep_ids, scenarios, envs)]
+
+
 def shard_episodes(
-    cfg: DatagenConfig, task: ShardTask, on_sample: Callable[[], None] | None = None
+    cfg: DatagenConfig, task: ShardTask, on_sample: Callable[[], None] | None = None, batch: int = BATCH_EPISODES
 ) -> Iterator[Episode]:
-    """The episodes of one shard task, exactly ``task.num_samples`` samples in all."""
+    """The episodes of one shard task, exactly ``task.num_samples`` samples in all: episode k of
+    scenario seed :func:`scenario_seed` (..., k) and id :func:`episode_id` (..., k), k = 0, 1, ...,
+    each cut where the shard is full. With a MADP policy to relabel they run in batches of ``batch``
+    (:func:`record_batch`: every episode runs all ``max_steps`` steps, the last one cut at the
+    samples left); otherwise, or with ``batch`` 1, one after another (:func:`record_episode`)."""
+    if cfg.policy and batches(cfg.policy) and batch > 1:
+        yield from _batched_shard_episodes(cfg, task, on_sample, batch)
+        return
     remaining, k = task.num_samples, 0
     while remaining > 0:
         seed = scenario_seed(cfg.seed, task.split, task.index, k)
@@ -100,3 +173,14 @@ def shard_episodes(
         remaining -= ep.num_steps
         k += 1
         yield ep
+
+
+def _batched_shard_episodes(cfg: DatagenConfig, task: ShardTask, on_sample: Callable[[], None] | None,
+                            batch: int) -> Iterator[Episode]:
+    full, rest = divmod(task.num_samples, full_episode_samples(cfg))
+    budgets = [full_episode_samples(cfg)] * full + ([rest] if rest else [])
+    for first in range(0, len(budgets), batch):
+        ks = range(first, min(first + batch, len(budgets)))
+        scenarios = [episode_scenario(cfg, scenario_seed(cfg.seed, task.split, task.index, k)) for k in ks]
+        yield from record_batch(scenarios, cfg, [episode_id(task.split, task.index, k) for k in ks],
+                                [budgets[k] for k in ks], on_sample)

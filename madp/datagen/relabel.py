@@ -2,15 +2,18 @@
 
 :func:`learner_settings` reads a policy file once, when the plan is made, into the ``policy`` of a
 :class:`~madp.datagen.plan.DatagenConfig` (path, checksum, kind, beta and the dataset the policy
-learned from); :func:`learner_driver` turns it into what moves the swarm in each episode. The
-learner is built by :func:`madp.controllers.make_controller` (MADP decentralized or LPAC-K3), so its
-model is loaded once per process, in the one cache of models.
+learned from); :func:`learner_driver` turns it into what moves the swarm in one episode, and
+:func:`learner_batch_driver` into what moves the swarms of a batch of episodes in lockstep (a MADP
+policy, called once per step for all of them: :func:`batches`). The learner is built by
+:func:`madp.controllers.make_controller` (MADP decentralized or LPAC-K3), so its model is loaded once
+per process, in the one cache of models.
 """
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -55,6 +58,13 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
             "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}
 
 
+def batches(policy: dict) -> bool:
+    """Whether the relabelling episodes of a shard run as one batch in lockstep
+    (:func:`learner_batch_driver`): with a MADP policy; LPAC-K3's episodes run one after another
+    (:func:`learner_driver`)."""
+    return policy.get("kind") == "madp"
+
+
 def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray], np.ndarray]:
     """What moves the swarm in a relabelling rollout: ``driver(env, expert_u) -> u`` executes the
     expert's action with probability beta (one draw per step) and the learned policy's otherwise:
@@ -64,8 +74,49 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
 
     The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
     here, so a shard's bytes do not depend on which process makes it or how many there are."""
-    import torch
+    learner = _learner(policy, seed)
+    coin, beta = _coin(seed), float(policy["beta"])
 
+    def drive(env: CoverageEnv, expert_u: np.ndarray) -> np.ndarray:
+        if coin.random() < beta:
+            return expert_u
+        with _one_torch_thread():
+            return learner(env)
+
+    return drive
+
+
+def learner_batch_driver(policy: dict, seeds: Sequence[int]) -> Callable[[list[CoverageEnv], np.ndarray, Sequence[int]], np.ndarray]:
+    """:func:`learner_driver` of B episodes in lockstep, episode b of scenario seed ``seeds[b]`` (a MADP
+    policy: :func:`batches`): ``drive(envs, expert_u [B, N, 2], live) -> u [B, N, 2]``.
+
+    Each episode in ``live`` draws its coin once, from its own stream, exactly as its lone driver
+    would at this step; the MADP policy is then called once (:meth:`MADPPolicy.act_batch`, torch on
+    one thread) for the live episodes whose coin chose the learner, each with its own noise
+    generator (seeded by its scenario seed, as its lone policy's), so every episode's draws and noise
+    are those of its lone rollout and its actions differ from it only by the batch's float rounding.
+    The other episodes execute ``expert_u`` (the ones not in ``live`` draw nothing)."""
+    from madp.policies.madp import noise_generator
+
+    learner = _learner(policy, seeds[0])
+    coins, beta = [_coin(s) for s in seeds], float(policy["beta"])
+    generators = [noise_generator(s) for s in seeds]
+
+    def drive(envs: list[CoverageEnv], expert_u: np.ndarray, live: Sequence[int]) -> np.ndarray:
+        learned = [b for b in live if not coins[b].random() < beta]
+        u = np.array(expert_u, copy=True)
+        if learned:
+            with _one_torch_thread():
+                u[learned] = learner.act_batch([envs[b] for b in learned], [generators[b] for b in learned])
+        return u
+
+    return drive
+
+
+def _learner(policy: dict, seed: int):
+    """The learned policy of a relabelling plan, its noise seeded by ``seed``: MADP with the plan's
+    selection rule at the plan's K and S, or LPAC-K3 (the file checked against the plan's sha256
+    once per process)."""
     from madp.controllers import make_controller
     from madp.policies import SamplingSettings
 
@@ -79,18 +130,21 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
     sampling = SamplingSettings.of(select=select, **({"candidates": policy.get("candidates", 4),
                                                      "sampling_steps": policy.get("sampling_steps", 3)}
                                                     if select != "none" else {}))
-    learner = make_controller(policy["kind"], policy["path"], seed=seed, sampling=sampling)
-    coin = np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
-    beta = float(policy["beta"])
+    return make_controller(policy["kind"], policy["path"], seed=seed, sampling=sampling)
 
-    def drive(env: CoverageEnv, expert_u: np.ndarray) -> np.ndarray:
-        if coin.random() < beta:
-            return expert_u
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
-            return learner(env)
-        finally:
-            torch.set_num_threads(threads)
 
-    return drive
+def _coin(seed: int) -> np.random.Generator:
+    """The stream of an episode's expert/learner draws, seeded by its scenario seed."""
+    return np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
+
+
+@contextmanager
+def _one_torch_thread() -> Iterator[None]:
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)

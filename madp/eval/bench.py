@@ -106,7 +106,8 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
     (a random uniform-launch scenario) with K candidates per robot at S sampler steps, for every
     (K, S) of ``candidates`` (S ``None``: the default S) and every rule of
-    :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1): the
+    :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1; ``value`` when the
+    checkpoint carries a map prior): the
     policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
     the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
     untrained ``cpu`` preset; the default sampler."""
@@ -120,13 +121,16 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
     torch.manual_seed(seed)
     model = load(path, "madp", device)[0] if path else MADP(madp_config("cpu")).to(device)
+    from madp.policies.checkpoint import load_map_prior
+
+    prior = load_map_prior(path, device) if path else None
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     rows = []
     with _threads(threads):
         for k, steps in candidates:
-            for select in SELECTS[:1] if k == 1 else SELECTS[1:]:
+            for select in SELECTS[:1] if k == 1 else [s for s in SELECTS[1:] if s != "value" or prior is not None]:
                 sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
-                policy = MADPPolicy(model, "decentralized", sampling, device=device)
+                policy = MADPPolicy(model, "decentralized", sampling, device=device, map_prior=prior)
                 gen = noise_generator(seed)
                 times = _timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
                 rows.append({"candidates": k, "select": select, "num_robots": num_robots, "sampler": policy.sampler,

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +44,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
         rt = RobotRuntime(tmp, threads=1)
         obs, pos, nbr = env.observations(), env.positions_m, env.neighbours()
         views = explore_prior(env, local_views(env))
-        rows = [replace(views, **{k: getattr(views, k)[i:i + 1] for k in ("start_m", "offset_m", "weights", "origin_m")})
-                for i in range(num_robots)]
+        rows = [views.row(i) for i in range(num_robots)]
         sent = [rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed) for i in range(num_robots)]
         inboxes = [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(num_robots)]
 

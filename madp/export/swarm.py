@@ -22,7 +22,6 @@ import atexit
 import hashlib
 import shutil
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -101,8 +100,7 @@ class OnnxMADPPolicy:
         draw = None if noise is None else (lambda ids: noise[:, ids])
         actions, cands = [], []
         for i in range(env.num_robots):
-            row = None if views is None else replace(views, **{k: getattr(views, k)[i:i + 1] for k in
-                                                              ("start_m", "offset_m", "weights", "origin_m")})
+            row = None if views is None else views.row(i)
             res = rt.step(i, env.steps, obs[i], pos[i], inboxes[i], seed, view=row,
                           noise=draw, own=sent[i])
             actions.append(res.action_mps)

@@ -31,6 +31,11 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
+A robot that holds no neighbour (out of range, or every message lost) does not choose among its
+samples under the rules that read its map (``cell``, ``explore``, ``value``, ``mppi``,
+``oracle_cell``): it takes the Lloyd step of the disc it would expect to cover around where it last
+heard a neighbour (:func:`madp.robot.choice.lone_steps`).
+
 The local rules read only what a robot knows: :func:`local_views` collects, per robot, its own map's
 window, its own position and its neighbours' positions; :func:`local_cell_costs` and
 :func:`mppi_weights` take nothing else, and row i of their result depends on row i of their inputs
@@ -50,7 +55,7 @@ import numpy as np
 
 from madp.errors import SettingError
 from madp.robot.choice import (GRID_M, MPPI_TEMPERATURE, LocalViews, explore_prior, local_cell_costs, local_views,
-                               medoid_index, mppi_weights, unexplored_blocks)
+                               lone_steps, medoid_index, mppi_weights, unexplored_blocks)
 from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
 
@@ -123,7 +128,10 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
         views = value_views(env, views, map_prior)
     costs = local_cell_costs(views, per_robot, env.params)
     if select in ("cell", "explore", "oracle_cell", "value"):
-        return np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
-    if select == "mppi":
-        return np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)
-    raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
+        chosen = np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
+    elif select == "mppi":
+        chosen = np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)
+    else:
+        raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
+    lone, steps = lone_steps(views, env.params)  # a robot that hears no one: its bounded Lloyd step
+    return np.where(lone[:, None], steps, chosen)

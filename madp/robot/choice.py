@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
 __all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
-           "lone_radius_m", "map_prior", "map_views", "medoid_index", "mppi_weights", "unexplored_blocks"]
+           "lone_radius_m", "lone_steps", "map_prior", "map_views", "medoid_index", "mppi_weights", "unexplored_blocks"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
@@ -42,8 +42,8 @@ class LocalViews:
     has its centre at ``origin_m + GRID_M * (a, b) + GRID_M / 2``;
     ``neighbours_m`` [R, M, 2]: the latest positions of its neighbours within r_c, padded;
     ``valid`` [R, M]: which of them are real; ``anchor_m`` [R, 2]: where it last heard a neighbour
-    (its position estimate at that step; its first one until then), which bounds the cell of a robot
-    that hears no one (:func:`local_cell_costs`). None: its own position."""
+    (its position estimate at that step; its first one until then), around which a robot that hears
+    no one covers (:func:`lone_steps`). None: its own position."""
 
     start_m: np.ndarray
     offset_m: np.ndarray
@@ -52,6 +52,12 @@ class LocalViews:
     neighbours_m: np.ndarray
     valid: np.ndarray
     anchor_m: np.ndarray | None = None
+
+    def row(self, i: int) -> "LocalViews":
+        """Robot i's row alone (R = 1)."""
+        return LocalViews(*(None if v is None else v[i:i + 1] for v in
+                            (self.start_m, self.offset_m, self.weights, self.origin_m, self.neighbours_m, self.valid,
+                             self.anchor_m)))
 
 
 def lone_radius_m(params: SimParams) -> float:
@@ -365,30 +371,46 @@ def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimPara
     Robot r moves to y = :func:`madp.sim.env.move` of its own position; its cell is the set of
     grid points of its window closer to y than to every valid neighbour (ties: its own); the cost is
     ``sum over the cell of weight · |q − y|²`` (J restricted to its own cell, on its own map,
-    on a grid of GRID_M m: each block's mass at the block's centre). A robot that holds no neighbour
-    cannot bound its cell by anyone: its cell is the disc of :func:`lone_radius_m` around its
-    ``anchor_m`` (where it last heard one), so that alone it covers the share it would expect rather
-    than chase the importance the whole swarm is after. Uses ``views`` and the motion constants and
-    N of ``params`` only."""
+    on a grid of GRID_M m: each block's mass at the block's centre). Uses ``views`` and the motion
+    constants of ``params`` only."""
     y, _ = move(views.start_m[:, None], views.offset_m[:, None], actions_mps, params)  # [R, K, 2]
-    return _cell_costs(np.ascontiguousarray(y, dtype=np.float64), _lone_bounded(views, params), views.origin_m,
+    return _cell_costs(np.ascontiguousarray(y, dtype=np.float64), views.weights, views.origin_m,
                        np.ascontiguousarray(views.neighbours_m, dtype=np.float64), views.valid, GRID_M)
 
 
-def _lone_bounded(views: LocalViews, params: SimParams) -> np.ndarray:
-    """``views.weights`` [R, G, G] with the blocks of every robot that holds no valid neighbour zeroed
-    where their centre is farther than :func:`lone_radius_m` from its anchor (the rows of robots that
-    hold one are the same array's)."""
+def lone_steps(views: LocalViews, params: SimParams) -> tuple[np.ndarray, np.ndarray]:
+    """What a robot that holds no valid neighbour does instead of choosing among its samples:
+    ``lone [R]`` bool (which robots hold none) and ``steps_mps [R, 2]`` (their rows only; the others
+    0). Nothing bounds such a robot's cell but what it expects: the disc of :func:`lone_radius_m` around
+    its ``anchor_m``, where it last heard a neighbour. It takes the Lloyd step toward the centroid of
+    that disc's mass on its weights (block centres, ``views.weights``: the rule's map, with
+    ``explore``'s prior where the rule has it), ``min(|g − x| / Δt, u_max)`` from its position x as
+    the motion rule integrates it, and stays where the disc holds no mass. Alone, a robot then
+    covers the share it would expect around the place it last held, and N isolated robots do not
+    chase the same importance."""
     lone = ~views.valid.any(1)
+    steps = np.zeros((len(lone), 2))
     if views.anchor_m is None or not lone.any():
-        return views.weights
+        return lone, steps
     g = views.weights.shape[1]
     centre = np.arange(g) * GRID_M + GRID_M / 2  # [G]: block centres relative to the window's corner
-    rel = views.origin_m[lone] - views.anchor_m[lone]  # [L, 2]
-    d2 = (rel[:, 0, None, None] + centre[None, :, None]) ** 2 + (rel[:, 1, None, None] + centre[None, None, :]) ** 2
-    out = views.weights.copy()
-    out[lone] = np.where(d2 <= lone_radius_m(params) ** 2, out[lone], 0.0)
-    return out
+    qx = views.origin_m[lone, 0, None] + centre[None]  # [L, G]
+    qy = views.origin_m[lone, 1, None] + centre[None]
+    ax, ay = views.anchor_m[lone, 0], views.anchor_m[lone, 1]
+    d2 = (qx - ax[:, None])[:, :, None] ** 2 + (qy - ay[:, None])[:, None, :] ** 2  # [L, G, G]
+    w = np.where(d2 <= lone_radius_m(params) ** 2, views.weights[lone], 0.0)
+    mass = w.sum((1, 2))
+    x = views.start_m[lone] + views.offset_m[lone]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        goal = np.stack([(w.sum(2) * qx).sum(1), (w.sum(1) * qy).sum(1)], 1) / mass[:, None]
+    goal = np.where((mass > 0)[:, None], goal, x)
+    diff = goal - x
+    dist = np.linalg.norm(diff, axis=1)
+    speed = np.minimum(dist / params.dt_s, params.max_speed_mps)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.where((dist > 0)[:, None], diff / dist[:, None] * speed[:, None], 0.0)
+    steps[lone] = u
+    return lone, steps
 
 
 def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np.ndarray:

@@ -32,7 +32,7 @@ import numpy as np
 
 from madp.errors import InputError, SettingError
 from madp.io.jsonfile import read_json
-from .choice import LocalViews, local_cell_costs, medoid_index, mppi_weights
+from .choice import LocalViews, local_cell_costs, lone_steps, medoid_index, mppi_weights
 from madp.sim.network import Message
 from madp.sim.params import SimParams
 from madp.sim.rules import clip_speed, closer_than_squared
@@ -260,6 +260,8 @@ class RobotRuntime:
         valid = np.zeros((1, m), bool)
         valid[0, :len(neighbours_m)] = True
         row = LocalViews(view.start_m, view.offset_m, view.weights, view.origin_m, nbr, valid, view.anchor_m)
+        if not len(neighbours_m):  # it hears no one: the Lloyd step of the disc it expects to cover
+            return lone_steps(row, self.params)[1][0]
         costs = local_cell_costs(row, candidates_mps[None], self.params)
         if self.rule == "mppi":
             return np.einsum("k,kd->d", mppi_weights(costs)[0], candidates_mps)

@@ -18,6 +18,7 @@ from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings, noise_generator
 from madp.policies.select import explore_prior, local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
+from madp.robot.choice import lone_steps
 from madp.sim.rules import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.robot_maps import EXPLORED_BLOCK_M
@@ -60,8 +61,8 @@ class Capture:
         self.calls = []
         monkeypatch.setattr(madp_policy, "select_actions", self)
 
-    def __call__(self, select, env, candidates):
-        chosen = select_actions(select, env, candidates)
+    def __call__(self, select, env, candidates, map_prior=None):
+        chosen = select_actions(select, env, candidates, map_prior)
         self.calls.append((candidates.copy(), chosen))
         return chosen
 
@@ -162,9 +163,10 @@ def test_oracle_cell_is_the_cell_rule_on_the_true_map():
     full.maps.maps_padded[:] = full.maps.world_padded  # every robot has sensed the whole world
     full.maps.seen_lo[:], full.maps.seen_hi[:] = 0, full.maps.maps_padded.shape[1]  # (its sensed box)
     np.testing.assert_array_equal(r0(full, True), r0(full, False))
+    lone, steps = lone_steps(views, base.params)  # a robot that hears no one takes its own step
     np.testing.assert_array_equal(select_actions("oracle_cell", base, cands),
-                                  np.take_along_axis(cands.transpose(1, 0, 2), local_cell_costs(
-                                      views, cands.transpose(1, 0, 2), base.params).argmin(1)[:, None, None], 1)[:, 0])
+                                  np.where(lone[:, None], steps, np.take_along_axis(cands.transpose(1, 0, 2), local_cell_costs(
+                                      views, cands.transpose(1, 0, 2), base.params).argmin(1)[:, None, None], 1)[:, 0]))
 
 
 def test_the_explored_map_holds_the_blocks_a_robots_sensor_covered():
@@ -196,12 +198,14 @@ def test_explore_counts_unexplored_blocks_at_the_mean_of_explored_ones():
     explored_blocks = (added[0] == 0) & (views.weights[0] > 0)
     assert np.unique(np.round(added[0][added[0] > 0], 9))[0] > 0 and explored_blocks.any()
     # a robot that has sensed nothing moves toward the unexplored part of its cell: from a corner of
-    # the world, into it
-    lone = CoverageEnv(_scenario([[30.0, 30.0], [900.0, 900.0]]))
+    # the world, into it (with a neighbour, it chooses among its samples; alone, it steps there itself)
+    corner = CoverageEnv(_scenario([[30.0, 30.0], [200.0, 200.0]]))
     cands = np.zeros((2, 2, 2))
     cands[0, 0], cands[1, 0] = [-3.0, -3.0], [3.0, 3.0]  # out of the world / into it
-    assert local_views(lone).weights[0].sum() == 0
-    np.testing.assert_array_equal(select_actions("explore", lone, cands)[0], [3.0, 3.0])
+    assert local_views(corner).weights[0].sum() == 0
+    np.testing.assert_array_equal(select_actions("explore", corner, cands)[0], [3.0, 3.0])
+    alone = select_actions("explore", CoverageEnv(_scenario([[30.0, 30.0], [900.0, 900.0]])), cands)[0]
+    assert alone[0] > 0 and np.isclose(alone[0], alone[1])
 
 
 def test_explore_prior_is_on_exactly_the_blocks_not_explored_in_every_cell():
@@ -235,14 +239,16 @@ def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
     np.testing.assert_allclose(mppi_weights(costs * 7 + 3), w)  # λ scales with the costs' spread
     np.testing.assert_allclose(mppi_weights(np.ones((2, K))), 1 / K)  # no spread: the mean
     monkeypatch.setattr(select_mod, "MPPI_TEMPERATURE", 1e-9)
-    spread = np.ptp(costs, axis=1) > 0  # robots 3 and 4 see no importance: equal costs, the mean
+    spread = np.ptp(costs, axis=1) > 0  # robots 3 and 4 see no importance: equal costs
     assert spread.sum() == 3
+    lone, steps = lone_steps(local_views(env), env.params)  # robots 2-4 hear no one: their own step
+    assert lone.tolist() == [False, False, True, True, True]
     sharp = select_actions("mppi", env, cands)
-    np.testing.assert_allclose(sharp[spread], select_actions("cell", env, cands)[spread], atol=1e-12)
-    np.testing.assert_allclose(sharp[~spread], cands.mean(0)[~spread], atol=1e-12)
+    np.testing.assert_allclose(sharp[~lone], select_actions("cell", env, cands)[~lone], atol=1e-12)
+    np.testing.assert_array_equal(sharp[lone], steps[lone])
     monkeypatch.setattr(select_mod, "MPPI_TEMPERATURE", 1e9)
-    np.testing.assert_allclose(select_actions("mppi", env, cands), cands.mean(0), atol=1e-8)
-    assert np.abs(cands.mean(0) - select_actions("cell", env, cands)).max() > 0.1
+    np.testing.assert_allclose(select_actions("mppi", env, cands)[~lone], cands.mean(0)[~lone], atol=1e-8)
+    assert np.abs(cands.mean(0) - select_actions("cell", env, cands))[~lone].max() > 0.1
 
 
 def test_medoid_keeps_each_robots_most_typical_candidate():
@@ -295,9 +301,9 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--select", "none", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell), got select none"),
+                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell, value), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
-                                                        "mppi, medoid, explore, oracle_cell, got 'vote'"),
+                                                        "mppi, medoid, explore, oracle_cell, value, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     """(A rule named alone takes its default K: ``SamplingSettings.of``, tested below.)"""

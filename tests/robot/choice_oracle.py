@@ -68,18 +68,3 @@ def cell_costs(y, weights, origin, nbr, valid, b):  # pragma: no cover (compiled
                         out[r, k] += w * d
     return out
 
-
-def lone_bounded(weights, origin, anchor, valid, radius, b):
-    """The weights a robot with no valid neighbour keeps: each block whose centre is within
-    ``radius`` of its anchor (the others 0.0); a robot with one keeps them all."""
-    out = weights.copy()
-    for r in range(weights.shape[0]):
-        if valid[r].any():
-            continue
-        for a in range(weights.shape[1]):
-            for c in range(weights.shape[2]):
-                dx = origin[r, 0] + b * a + b / 2 - anchor[r, 0]
-                dy = origin[r, 1] + b * c + b / 2 - anchor[r, 1]
-                if dx * dx + dy * dy > radius * radius:
-                    out[r, a, c] = 0.0
-    return out

@@ -27,9 +27,7 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
 
 def _oracle_costs(views, actions_mps, params) -> np.ndarray:
     y, _ = move(views.start_m[:, None], views.offset_m[:, None], actions_mps, params)
-    weights = oracle.lone_bounded(views.weights, views.origin_m, views.anchor_m, views.valid,
-                                  choice.lone_radius_m(params), GRID_M)
-    return oracle.cell_costs(np.ascontiguousarray(y), weights, views.origin_m,
+    return oracle.cell_costs(np.ascontiguousarray(y), views.weights, views.origin_m,
                              np.ascontiguousarray(views.neighbours_m), views.valid, GRID_M)
 
 

@@ -1,0 +1,105 @@
+"""The ``value`` rule's learned map prior: its inputs and targets, the weights it gives unexplored
+blocks, its examples and training into a policy file that carries it, and the one-line errors."""
+
+from __future__ import annotations
+
+import io
+import contextlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from madp.cli import main
+from madp.controllers import make_controller
+from madp.errors import InputError, SettingError
+from madp.models.map_prior import MapPrior, prior_inputs, prior_targets, prior_weights, window_masks
+from madp.policies import SamplingSettings
+from madp.policies.checkpoint import load_map_prior, load_policy
+from madp.sim import CoverageEnv, Scenario, SimParams
+from madp.training.map_prior import collect, train
+
+SHIPPED = Path(__file__).resolve().parents[2] / "madp" / "checkpoints" / "madp-cpu.safetensors"
+
+
+def test_inputs_and_targets_per_coarse_cell():
+    g = 8  # two coarse cells of 4 blocks (4 m) per axis
+    w = np.zeros((1, g, g))
+    w[0, :4, :4] = 32.0  # 2 per m² in the first coarse cell
+    unexplored = np.zeros((1, g, g), bool)
+    unexplored[0, :4, :2] = True  # half of it unexplored
+    inside = np.ones((1, g, g), bool)
+    inside[0, 4:, 4:] = False  # the last coarse cell outside the world
+    x = prior_inputs(w, unexplored, inside, 4)
+    assert x.shape == (1, 3, 2, 2)
+    assert x[0, 0, 0, 0] == pytest.approx(2.0) and x[0, 1, 0, 0] == pytest.approx(0.5)
+    assert x[0, 2, 1, 1] == 0 and x[0, 1, 1, 1] == 0 and x[0, 0, 1, 1] == 0
+    y = prior_targets(w, inside, 4)
+    assert y[0, 0, 0] == pytest.approx(2.0) and y[0, 1, 1] == 0
+
+
+def test_prior_weights_fill_only_unexplored_blocks_inside():
+    torch.manual_seed(0)
+    net = MapPrior().eval()
+    rng = np.random.default_rng(0)
+    w = rng.random((3, 64, 64))
+    unexplored = rng.random((3, 64, 64)) < 0.5
+    inside = window_masks(np.array([[-100.0, 0.0], [0.0, 0.0], [900.0, 900.0]]), 64, 4, 1024)
+    out = prior_weights(net, w, unexplored, inside, 4)
+    fill = unexplored & inside
+    assert np.array_equal(out[~fill], w[~fill]) and (out[fill] > w[fill]).all()
+    assert np.array_equal(prior_weights(net, w, np.zeros_like(unexplored), inside, 4), w)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    d = tmp_path_factory.mktemp("prior")
+    meta = collect(d / "ex.npz", 2, every=10, steps=21, batch=2, progress=False)
+    scores = train(d / "ex.npz", SHIPPED, d / "policy.safetensors", epochs=2, batch=64, progress=False)
+    return d, meta, scores
+
+
+def test_collect_and_train_write_a_policy_file_that_carries_the_prior(trained):
+    d, meta, scores = trained
+    assert meta["examples"] == 2 * 3 * 32  # steps 0, 10 and 20 of two rollouts, every robot
+    assert np.isfinite(scores["held_out_mse"]) and scores["held_out_examples"] == 3 * 32
+    model, _ = load_policy(d / "policy.safetensors")
+    shipped, _ = load_policy(SHIPPED)
+    assert all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), shipped.state_dict().values()))
+    assert isinstance(load_map_prior(d / "policy.safetensors"), MapPrior)
+    assert load_map_prior(SHIPPED) is None
+
+
+def test_the_value_rule_acts_with_the_prior_and_refuses_a_file_without_one(trained):
+    d, _, _ = trained
+    sampling = SamplingSettings.of(select="value")
+    ctrl = make_controller("madp", str(d / "policy.safetensors"), sampling=sampling)
+    env = CoverageEnv(Scenario.random(3, SimParams()))
+    u = ctrl(env)
+    assert u.shape == (32, 2) and np.isfinite(u).all()
+    with pytest.raises(SettingError, match="carries none"):
+        make_controller("madp", str(SHIPPED), sampling=sampling)
+
+
+def _cli(*args) -> tuple[int, str]:
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            main([str(a) for a in args])
+            code = 0
+        except SystemExit as e:
+            code = e.code
+    return code, err.getvalue()
+
+
+def test_bad_examples_files_are_one_line_errors(trained, tmp_path):
+    d, _, _ = trained
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes((d / "ex.npz").read_bytes()[:1000])
+    with pytest.raises(InputError, match="cut.npz: not a map-prior examples file"):
+        train(cut, SHIPPED, tmp_path / "p.safetensors", progress=False)
+    code, err = _cli("value", "train", "--data", tmp_path / "none.npz", "--out", tmp_path / "p.safetensors")
+    assert code == 2 and "none.npz: not found" in err and "Traceback" not in err
+    code, err = _cli("value", "train", "--data", d / "ex.npz", "--out", d / "policy.safetensors")
+    assert code == 2 and "exists" in err
