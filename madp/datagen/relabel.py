@@ -11,9 +11,8 @@ per process, in the one cache of models.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -74,13 +73,15 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
 
     The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
     here, so a shard's bytes do not depend on which process makes it or how many there are."""
+    from madp.models.bench import _threads
+
     learner = _learner(policy, seed)
     coin, beta = _coin(seed), float(policy["beta"])
 
     def drive(env: CoverageEnv, expert_u: np.ndarray) -> np.ndarray:
         if coin.random() < beta:
             return expert_u
-        with _one_torch_thread():
+        with _threads(1):
             return learner(env)
 
     return drive
@@ -96,6 +97,7 @@ def learner_batch_driver(policy: dict, seeds: Sequence[int]) -> Callable[[list[C
     generator (seeded by its scenario seed, as its lone policy's), so every episode's draws and noise
     are those of its lone rollout and its actions differ from it only by the batch's float rounding.
     The other episodes execute ``expert_u`` (the ones not in ``live`` draw nothing)."""
+    from madp.models.bench import _threads
     from madp.policies.madp import noise_generator
 
     learner = _learner(policy, seeds[0])
@@ -106,7 +108,7 @@ def learner_batch_driver(policy: dict, seeds: Sequence[int]) -> Callable[[list[C
         learned = [b for b in live if not coins[b].random() < beta]
         u = np.array(expert_u, copy=True)
         if learned:
-            with _one_torch_thread():
+            with _threads(1):
                 u[learned] = learner.act_batch([envs[b] for b in learned], [generators[b] for b in learned])
         return u
 
@@ -136,15 +138,3 @@ def _learner(policy: dict, seed: int):
 def _coin(seed: int) -> np.random.Generator:
     """The stream of an episode's expert/learner draws, seeded by its scenario seed."""
     return np.random.default_rng([seed & 0xFFFFFFFF, seed >> 32, 0xDA66E])
-
-
-@contextmanager
-def _one_torch_thread() -> Iterator[None]:
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)

@@ -3,15 +3,12 @@ blocks, its examples and training into a policy file that carries it, and the on
 
 from __future__ import annotations
 
-import io
-import contextlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from madp.cli import main
 from madp.controllers import make_controller
 from madp.errors import InputError, SettingError
 from madp.models.map_prior import MapPrior, prior_inputs, prior_targets, prior_weights, window_masks
@@ -19,6 +16,7 @@ from madp.policies import SamplingSettings
 from madp.policies.checkpoint import load_map_prior, load_policy
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.training.map_prior import collect, train
+from tests.test_reliability_errors import cli
 
 SHIPPED = Path(__file__).resolve().parents[2] / "madp" / "checkpoints" / "madp-cpu.safetensors"
 
@@ -82,24 +80,13 @@ def test_the_value_rule_acts_with_the_prior_and_refuses_a_file_without_one(train
         make_controller("madp", str(SHIPPED), sampling=sampling)
 
 
-def _cli(*args) -> tuple[int, str]:
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        try:
-            main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code
-    return code, err.getvalue()
-
-
 def test_bad_examples_files_are_one_line_errors(trained, tmp_path):
     d, _, _ = trained
     cut = tmp_path / "cut.npz"
     cut.write_bytes((d / "ex.npz").read_bytes()[:1000])
     with pytest.raises(InputError, match="cut.npz: not a map-prior examples file"):
         train(cut, SHIPPED, tmp_path / "p.safetensors", progress=False)
-    code, err = _cli("value", "train", "--data", tmp_path / "none.npz", "--out", tmp_path / "p.safetensors")
+    code, err = cli("value", "train", "--data", tmp_path / "none.npz", "--out", tmp_path / "p.safetensors")
     assert code == 2 and "none.npz: not found" in err and "Traceback" not in err
-    code, err = _cli("value", "train", "--data", d / "ex.npz", "--out", d / "policy.safetensors")
+    code, err = cli("value", "train", "--data", d / "ex.npz", "--out", d / "policy.safetensors")
     assert code == 2 and "exists" in err
