@@ -74,7 +74,8 @@ def window_masks(origin_m: np.ndarray, blocks: int, block_m: int, world_size: in
 def _coarse_sum(x: np.ndarray, f: int) -> np.ndarray:
     """``[R, G, G]`` -> ``[R, G/f, G/f]``: sums over f × f blocks."""
     r, g = x.shape[0], x.shape[1]
-    return x.reshape(r, g // f, f, g // f, f).sum((2, 4))
+    rows = x.reshape(r, g // f, f, g).sum(2)  # [R, G/f, G]: contiguous runs of G
+    return rows.reshape(r, g // f, g // f, f).sum(3)
 
 
 def prior_inputs(weights: np.ndarray, unexplored: np.ndarray, inside: np.ndarray, block_m: int) -> np.ndarray:
@@ -84,11 +85,10 @@ def prior_inputs(weights: np.ndarray, unexplored: np.ndarray, inside: np.ndarray
     blocks inside (0 where none), the fraction of its blocks explored and inside, and the fraction inside."""
     f = COARSE_M // block_m
     known = inside & ~unexplored
-    n_known = _coarse_sum(known.astype(np.float64), f)
-    mass = _coarse_sum(np.where(known, weights, 0.0), f)
+    n_known = _coarse_sum(known.astype(np.float32), f)
+    mass = _coarse_sum(weights.astype(np.float32) * known, f)
     density = np.divide(mass, n_known * block_m ** 2, out=np.zeros_like(mass), where=n_known > 0)
-    out = np.stack([density, n_known / f ** 2, _coarse_sum(inside.astype(np.float64), f) / f ** 2], 1)
-    return out.astype(np.float32)
+    return np.stack([density, n_known / f ** 2, _coarse_sum(inside.astype(np.float32), f) / f ** 2], 1)
 
 
 def prior_targets(true_weights: np.ndarray, inside: np.ndarray, block_m: int) -> np.ndarray:
@@ -112,6 +112,6 @@ def prior_weights(net: MapPrior, weights: np.ndarray, unexplored: np.ndarray, in
     x = torch.from_numpy(prior_inputs(weights, unexplored, inside, block_m))
     p = next(net.parameters())
     density = net(x.to(p.device, p.dtype)).float().cpu().numpy().astype(np.float64)  # [R, G/f, G/f]
-    f = COARSE_M // block_m
-    per_block = np.repeat(np.repeat(density, f, 1), f, 2) * block_m ** 2
-    return weights + np.where(unexplored & inside, per_block, 0.0)
+    r, g, f = weights.shape[0], weights.shape[1], COARSE_M // block_m
+    fill = (unexplored & inside).reshape(r, g // f, f, g // f, f) * density[:, :, None, :, None] * block_m ** 2
+    return weights + fill.reshape(r, g, g)
