@@ -102,7 +102,7 @@ def value_views(env: CoverageEnv, views: LocalViews, map_prior) -> LocalViews:
 
     inside = window_masks(views.origin_m, views.weights.shape[1], GRID_M, env.params.world_size)
     return replace(views, weights=prior_weights(map_prior, views.weights, unexplored_blocks(env.maps, views), inside,
-                                                GRID_M))
+                                                GRID_M), sensed=views.weights)
 
 
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, map_prior=None) -> np.ndarray:

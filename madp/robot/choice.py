@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
 __all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
-           "lone_radius_m", "lone_steps", "map_prior", "map_views", "medoid_index", "mppi_weights", "unexplored_blocks"]
+           "LONE_PRIOR_SHARE", "lone_radius_m", "lone_steps", "map_prior", "map_views", "medoid_index", "mppi_weights", "unexplored_blocks"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
@@ -43,7 +43,8 @@ class LocalViews:
     ``neighbours_m`` [R, M, 2]: the latest positions of its neighbours within r_c, padded;
     ``valid`` [R, M]: which of them are real; ``anchor_m`` [R, 2]: where it last heard a neighbour
     (its position estimate at that step; its first one until then), around which a robot that hears
-    no one covers (:func:`lone_steps`). None: its own position."""
+    no one covers (:func:`lone_steps`). None: its own position. ``sensed`` [R, G, G]: the weights
+    before a prior was added to its unexplored blocks (None: no prior was added)."""
 
     start_m: np.ndarray
     offset_m: np.ndarray
@@ -52,18 +53,24 @@ class LocalViews:
     neighbours_m: np.ndarray
     valid: np.ndarray
     anchor_m: np.ndarray | None = None
+    sensed: np.ndarray | None = None
 
     def row(self, i: int) -> "LocalViews":
         """Robot i's row alone (R = 1)."""
         return LocalViews(*(None if v is None else v[i:i + 1] for v in
                             (self.start_m, self.offset_m, self.weights, self.origin_m, self.neighbours_m, self.valid,
-                             self.anchor_m)))
+                             self.anchor_m, self.sensed)))
+
+
+#: The share of a prior's mass on its unexplored blocks that a robot that hears no one counts
+#: (:func:`lone_steps`): enough to go and look around its anchor, little enough not to sit there.
+LONE_PRIOR_SHARE = 0.1
 
 
 def lone_radius_m(params: SimParams) -> float:
-    """The radius (m) of the disc a robot's cell is bounded by when it hears no one: the disc of the
-    world's area shared among N robots, ``world_size / sqrt(π N)`` (102 m for the paper's 32)."""
-    return params.world_size / float(np.sqrt(np.pi * params.num_robots))
+    """The radius (m) of the disc a robot that hears no one covers: r_c, so that it stays where it
+    could hear the neighbours it last heard if they are still about."""
+    return float(params.comm_radius_m)
 
 
 def local_views(env: CoverageEnv, true_map: bool = False) -> LocalViews:
@@ -170,7 +177,8 @@ def map_prior(maps: RobotMaps, views: LocalViews) -> LocalViews:
     blocks of its four corner cells), and inside when every cell of it is in the world; both rules
     are kept by the world's 8 symmetries, so the choice is exactly equivariant."""
     corner = views.origin_m.astype(np.int64) + maps.pad  # [N, 2]: each window's first cell, padded
-    return replace(views, weights=_prior_weights(maps.explored, corner, views.weights, maps.pad, maps.world_size))
+    return replace(views, weights=_prior_weights(maps.explored, corner, views.weights, maps.pad, maps.world_size),
+                   sensed=views.weights)
 
 
 def unexplored_blocks(maps: RobotMaps, views: LocalViews) -> np.ndarray:
@@ -383,11 +391,11 @@ def lone_steps(views: LocalViews, params: SimParams) -> tuple[np.ndarray, np.nda
     ``lone [R]`` bool (which robots hold none) and ``steps_mps [R, 2]`` (their rows only; the others
     0). Nothing bounds such a robot's cell but what it expects: the disc of :func:`lone_radius_m` around
     its ``anchor_m``, where it last heard a neighbour. It takes the Lloyd step toward the centroid of
-    that disc's mass on its weights (block centres, ``views.weights``: the rule's map, with
-    ``explore``'s prior where the rule has it), ``min(|g − x| / Δt, u_max)`` from its position x as
-    the motion rule integrates it, and stays where the disc holds no mass. Alone, a robot then
-    covers the share it would expect around the place it last held, and N isolated robots do not
-    chase the same importance."""
+    that disc's mass (block centres) on its sensed map plus :data:`LONE_PRIOR_SHARE` of the rule's
+    prior on its unexplored blocks (``views.sensed`` and ``views.weights``; the weights alone where the
+    rule adds no prior), ``min(|g − x| / Δt, u_max)`` from its position x as the motion rule
+    integrates it, and stays where the disc holds no mass. Alone, a robot then covers what is around
+    the place it last held, rather than follow the importance the whole swarm is after."""
     lone = ~views.valid.any(1)
     steps = np.zeros((len(lone), 2))
     if views.anchor_m is None or not lone.any():
@@ -398,7 +406,10 @@ def lone_steps(views: LocalViews, params: SimParams) -> tuple[np.ndarray, np.nda
     qy = views.origin_m[lone, 1, None] + centre[None]
     ax, ay = views.anchor_m[lone, 0], views.anchor_m[lone, 1]
     d2 = (qx - ax[:, None])[:, :, None] ** 2 + (qy - ay[:, None])[:, None, :] ** 2  # [L, G, G]
-    w = np.where(d2 <= lone_radius_m(params) ** 2, views.weights[lone], 0.0)
+    w = views.weights[lone]
+    if views.sensed is not None:
+        w = views.sensed[lone] + LONE_PRIOR_SHARE * (w - views.sensed[lone])
+    w = np.where(d2 <= lone_radius_m(params) ** 2, w, 0.0)
     mass = w.sum((1, 2))
     x = views.start_m[lone] + views.offset_m[lone]
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -24,7 +24,7 @@ episode's seed, the step and the robot's id (:func:`robot_noise`). Nothing here 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -259,7 +259,7 @@ class RobotRuntime:
         nbr[0, :len(neighbours_m)] = neighbours_m
         valid = np.zeros((1, m), bool)
         valid[0, :len(neighbours_m)] = True
-        row = LocalViews(view.start_m, view.offset_m, view.weights, view.origin_m, nbr, valid, view.anchor_m)
+        row = replace(view, neighbours_m=nbr, valid=valid)
         if not len(neighbours_m):  # it hears no one: the Lloyd step of the disc it expects to cover
             return lone_steps(row, self.params)[1][0]
         costs = local_cell_costs(row, candidates_mps[None], self.params)

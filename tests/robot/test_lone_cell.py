@@ -23,12 +23,12 @@ def _views(valid: bool, anchor_m) -> LocalViews:
                       np.array([[valid]]), np.array([anchor_m], dtype=np.float64))
 
 
-def test_lone_radius_is_the_share_of_the_world():
-    assert np.isclose(np.pi * lone_radius_m(P) ** 2 * P.num_robots, P.world_size ** 2)
+def test_lone_radius_is_the_communication_radius():
+    assert lone_radius_m(P) == P.comm_radius_m
 
 
 def test_a_lone_robot_steps_toward_the_mass_of_its_disc_only():
-    lone, u = lone_steps(_views(False, [500.0, 500.0]), P)
+    lone, u = lone_steps(_views(False, [900.0, 900.0]), P)
     assert lone[0] and (u == 0).all()  # every mass is farther than the radius from its anchor: it stays
     lone, u = lone_steps(_views(True, [500.0, 500.0]), P)
     assert not lone[0] and (u == 0).all()  # it hears someone: not its business
