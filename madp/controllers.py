@@ -245,12 +245,12 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
     model = load_model(info.kind, path, device)
     if not info.samples:
         return build(model, device)
-    if sampling is not None and sampling.select == "value":
+    if sampling is not None and sampling.select in ("value", "value_explore"):
         from madp.policies.checkpoint import load_map_prior
 
         prior = load_map_prior(path, device)
         if prior is None:
-            raise SettingError("select", f"value scores candidates on a learned map prior, and {path} carries none "
+            raise SettingError("select", f"{sampling.select} scores candidates on a learned map prior, and {path} carries none "
                                          "(madp value train adds one)")
         return build(model, info.mode, sampling, seed=seed, device=device, map_prior=prior)
     return build(model, info.mode, sampling, seed=seed, device=device)

@@ -128,7 +128,7 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     rows = []
     with _threads(threads):
         for k, steps in candidates:
-            for select in SELECTS[:1] if k == 1 else [s for s in SELECTS[1:] if s != "value" or prior is not None]:
+            for select in SELECTS[:1] if k == 1 else [s for s in SELECTS[1:] if not s.startswith("value") or prior is not None]:
                 sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
                 policy = MADPPolicy(model, "decentralized", sampling, device=device, map_prior=prior)
                 gen = noise_generator(seed)

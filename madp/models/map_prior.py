@@ -103,15 +103,17 @@ def prior_targets(true_weights: np.ndarray, inside: np.ndarray, block_m: int) ->
 
 @torch.inference_mode()
 def prior_weights(net: MapPrior, weights: np.ndarray, unexplored: np.ndarray, inside: np.ndarray,
-                  block_m: int) -> np.ndarray:
+                  block_m: int, floor: np.ndarray | None = None) -> np.ndarray:
     """``weights [R, G, G]`` (float64 block masses) with each unexplored block inside the world given
     the predicted importance of its coarse cell times the block's area (``explore``'s rule with the
-    network's prediction in place of the explored blocks' mean)."""
+    network's prediction in place of the explored blocks' mean), or ``floor [R, G, G]`` (a mass per
+    block) where that is more."""
     if len(weights) == 0:
         return weights
     x = torch.from_numpy(prior_inputs(weights, unexplored, inside, block_m))
     p = next(net.parameters())
     density = net(x.to(p.device, p.dtype)).float().cpu().numpy().astype(np.float64)  # [R, G/f, G/f]
     r, g, f = weights.shape[0], weights.shape[1], COARSE_M // block_m
-    fill = (unexplored & inside).reshape(r, g // f, f, g // f, f) * density[:, :, None, :, None] * block_m ** 2
-    return weights + fill.reshape(r, g, g)
+    fill = ((unexplored & inside).reshape(r, g // f, f, g // f, f) * density[:, :, None, :, None] * block_m ** 2
+            ).reshape(r, g, g)
+    return weights + (fill if floor is None else np.maximum(fill, floor))

@@ -28,12 +28,15 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   robot's window counts at the importance its policy file's map prior
   (:class:`madp.models.map_prior.MapPrior`, ``madp value train``) predicts from the window, and the
   candidate of lowest local cell cost on that map is kept. Needs a policy file that carries one.
+* ``value_explore``: ``value`` with ``explore``'s mean as a floor: each unexplored block counts at
+  the more of the two, so the robot still goes to look where the network expects little, and goes
+  first where it expects much.
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
 A robot that holds no neighbour (out of range, or every message lost) does not choose among its
-samples under the rules that read its map (``cell``, ``explore``, ``value``, ``mppi``,
-``oracle_cell``): it takes the Lloyd step of the disc it would expect to cover around where it last
+samples under the rules that read its map (``cell``, ``explore``, ``value``, ``value_explore``,
+``mppi``, ``oracle_cell``): it takes the Lloyd step of the disc it would expect to cover around where it last
 heard a neighbour (:func:`madp.robot.choice.lone_steps`).
 
 The local rules read only what a robot knows: :func:`local_views` collects, per robot, its own map's
@@ -60,7 +63,7 @@ from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value", "value_explore")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
@@ -95,14 +98,16 @@ def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
     return np.array([coverage_cost(env.prefix, p) for p in pos])
 
 
-def value_views(env: CoverageEnv, views: LocalViews, map_prior) -> LocalViews:
+def value_views(env: CoverageEnv, views: LocalViews, map_prior, floor: bool = False) -> LocalViews:
     """``views`` with the ``value`` rule's weights: each robot's unexplored blocks inside the world
-    given ``map_prior``'s prediction (:func:`madp.models.map_prior.prior_weights`)."""
+    given ``map_prior``'s prediction (:func:`madp.models.map_prior.prior_weights`); ``floor``: at least
+    ``explore``'s mean (``value_explore``)."""
     from madp.models.map_prior import prior_weights, window_masks
 
     inside = window_masks(views.origin_m, views.weights.shape[1], GRID_M, env.params.world_size)
+    mean = explore_prior(env, views).weights - views.weights if floor else None  # its mass on unexplored blocks
     return replace(views, weights=prior_weights(map_prior, views.weights, unexplored_blocks(env.maps, views), inside,
-                                                GRID_M), sensed=views.weights)
+                                                GRID_M, mean), sensed=views.weights)
 
 
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, map_prior=None) -> np.ndarray:
@@ -121,13 +126,13 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
     views = local_views(env, true_map=select == "oracle_cell")
     if select == "explore":
         views = explore_prior(env, views)
-    if select == "value":
+    if select in ("value", "value_explore"):
         if map_prior is None:
-            raise SettingError("select", "value scores candidates on a learned map prior: expected a policy file "
+            raise SettingError("select", f"{select} scores candidates on a learned map prior: expected a policy file "
                                          "that carries one (madp value train)")
-        views = value_views(env, views, map_prior)
+        views = value_views(env, views, map_prior, floor=select == "value_explore")
     costs = local_cell_costs(views, per_robot, env.params)
-    if select in ("cell", "explore", "oracle_cell", "value"):
+    if select in ("cell", "explore", "oracle_cell", "value", "value_explore"):
         chosen = np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
     elif select == "mppi":
         chosen = np.einsum("nk,nkd->nd", mppi_weights(costs, MPPI_TEMPERATURE), per_robot)

@@ -48,6 +48,9 @@ def test_prior_weights_fill_only_unexplored_blocks_inside():
     fill = unexplored & inside
     assert np.array_equal(out[~fill], w[~fill]) and (out[fill] > w[fill]).all()
     assert np.array_equal(prior_weights(net, w, np.zeros_like(unexplored), inside, 4), w)
+    high = np.where(fill, 1e6, 0.0)  # a floor above every prediction: the floor
+    np.testing.assert_array_equal(prior_weights(net, w, unexplored, inside, 4, high)[fill], w[fill] + 1e6)
+    np.testing.assert_array_equal(prior_weights(net, w, unexplored, inside, 4, np.zeros_like(w)), out)
 
 
 @pytest.fixture(scope="module")
@@ -78,6 +81,8 @@ def test_the_value_rule_acts_with_the_prior_and_refuses_a_file_without_one(train
     assert u.shape == (32, 2) and np.isfinite(u).all()
     with pytest.raises(SettingError, match="carries none"):
         make_controller("madp", str(SHIPPED), sampling=sampling)
+    floor = make_controller("madp", str(d / "policy.safetensors"), sampling=SamplingSettings.of(select="value_explore"))
+    assert np.isfinite(floor(CoverageEnv(Scenario.random(3, SimParams())))).all()
 
 
 def test_bad_examples_files_are_one_line_errors(trained, tmp_path):
