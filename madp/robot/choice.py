@@ -386,13 +386,14 @@ def local_cell_costs(views: LocalViews, actions_mps: np.ndarray, params: SimPara
                        np.ascontiguousarray(views.neighbours_m, dtype=np.float64), views.valid, GRID_M)
 
 
-def lone_steps(views: LocalViews, params: SimParams) -> tuple[np.ndarray, np.ndarray]:
+def lone_steps(views: LocalViews, params: SimParams, radius_m: float | None = None,
+               prior_share: float = LONE_PRIOR_SHARE) -> tuple[np.ndarray, np.ndarray]:
     """What a robot that holds no valid neighbour does instead of choosing among its samples:
     ``lone [R]`` bool (which robots hold none) and ``steps_mps [R, 2]`` (their rows only; the others
-    0). Nothing bounds such a robot's cell but what it expects: the disc of :func:`lone_radius_m` around
-    its ``anchor_m``, where it last heard a neighbour. It takes the Lloyd step toward the centroid of
-    that disc's mass (block centres) on its sensed map plus :data:`LONE_PRIOR_SHARE` of the rule's
-    prior on its unexplored blocks (``views.sensed`` and ``views.weights``; the weights alone where the
+    0). Nothing bounds such a robot's cell but what it expects: the disc of ``radius_m`` (None:
+    :func:`lone_radius_m`) around its ``anchor_m``, where it last heard a neighbour. It takes the Lloyd
+    step toward the centroid of that disc's mass (block centres) on its sensed map plus ``prior_share``
+    of the rule's prior on its unexplored blocks (``views.sensed`` and ``views.weights``; the weights alone where the
     rule adds no prior), ``min(|g − x| / Δt, u_max)`` from its position x as the motion rule
     integrates it, and stays where the disc holds no mass. Alone, a robot then covers what is around
     the place it last held, rather than follow the importance the whole swarm is after."""
@@ -408,8 +409,9 @@ def lone_steps(views: LocalViews, params: SimParams) -> tuple[np.ndarray, np.nda
     d2 = (qx - ax[:, None])[:, :, None] ** 2 + (qy - ay[:, None])[:, None, :] ** 2  # [L, G, G]
     w = views.weights[lone]
     if views.sensed is not None:
-        w = views.sensed[lone] + LONE_PRIOR_SHARE * (w - views.sensed[lone])
-    w = np.where(d2 <= lone_radius_m(params) ** 2, w, 0.0)
+        w = views.sensed[lone] + prior_share * (w - views.sensed[lone])
+    radius_m = lone_radius_m(params) if radius_m is None else radius_m
+    w = np.where(d2 <= radius_m ** 2, w, 0.0)
     mass = w.sum((1, 2))
     x = views.start_m[lone] + views.offset_m[lone]
     with np.errstate(invalid="ignore", divide="ignore"):
