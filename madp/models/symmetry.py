@@ -29,7 +29,8 @@ from torch import Tensor
 
 from madp.sim.launch import D4_SIZE, d4_matrix
 
-__all__ = ["D4_SIZE", "d4_matrix", "transform_sample", "transform_state", "transform_points", "inverse_actions", "AUGMENTATIONS"]
+__all__ = ["D4_SIZE", "d4_matrix", "transform_image", "transform_sample", "transform_state", "transform_points",
+           "inverse_actions", "AUGMENTATIONS"]
 
 AUGMENTATIONS = ("none", "d4")
 
@@ -63,14 +64,19 @@ def transform_sample(obs: Tensor, pos_m: Tensor, actions: Tensor, g: int, world_
         raise ValueError(f"D4 element must be in 0..7, got {g}")
     if g == 0:
         return obs, pos_m, actions
-    img = obs.transpose(-1, -2) if g & 1 else obs
-    dims = [d for d, bit in ((-2, 2), (-1, 4)) if g & bit]
-    if dims:
-        img = img.flip(dims)
+    img = transform_image(obs, g)
     comm = img[..., 1:3, :, :].movedim(-3, -1)  # [..., S, S, 2] offset vectors per pixel
     comm = _vectors(comm, g).movedim(-1, -3)
     img = torch.cat([img[..., :1, :, :], comm, img[..., 3:, :, :]], dim=-3)
     return img.contiguous(), transform_points(pos_m, g, world_size), _vectors(actions, g)
+
+
+def transform_image(img: Tensor, g: int) -> Tensor:
+    """Element g applied to images ``[..., S, S]`` indexed ``[x, y]`` over a square window: transposed
+    for the axis swap, flipped along each reflected axis (values unchanged)."""
+    img = img.transpose(-1, -2) if g & 1 else img
+    dims = [d for d, bit in ((-2, 2), (-1, 4)) if g & bit]
+    return img.flip(dims) if dims else img
 
 
 def transform_points(pos_m: Tensor, g: int, world_size: float) -> Tensor:

@@ -31,6 +31,7 @@ from madp.datagen.plan import scenario_seed
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path
 from madp.models.map_prior import MapPrior, MapPriorConfig, prior_inputs, prior_targets, window_masks
+from madp.models.symmetry import transform_image
 from madp.robot.choice import GRID_M, local_views, unexplored_blocks
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.launch import TRAINING_LAUNCHES, draw_launch
@@ -134,12 +135,6 @@ def _load(path: Path) -> tuple[dict, dict]:
     return data, meta
 
 
-def _d4(x: torch.Tensor, g: int) -> torch.Tensor:
-    """Element g of the square's 8 symmetries on the last two axes."""
-    x = x.transpose(-1, -2) if g & 4 else x
-    return torch.rot90(x, g & 3, (-2, -1))
-
-
 def _mean_prior(x: torch.Tensor) -> torch.Tensor:
     """The explore rule's prediction for every cell: the explored part's mean importance per m²
     over the whole window (1 mass unit per block where nothing explored holds any)."""
@@ -191,7 +186,7 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
             for i in range(max(1, n_tr // batch)):
                 j = perm[i * batch:(i + 1) * batch]
                 k = int(torch.randint(8, (1,), generator=g))
-                xb, yb, wb = _d4(xt[j], k), _d4(yt[j], k), _d4(wt[j], k)
+                xb, yb, wb = transform_image(xt[j], k), transform_image(yt[j], k), transform_image(wt[j], k)
                 loss = ((net(xb) - yb) ** 2 * wb).sum() / wb.sum().clamp(min=1e-9)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
