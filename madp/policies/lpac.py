@@ -101,7 +101,6 @@ class LPACPolicy:
                     for r, e, a in zip(got, envs, adj.cpu().numpy()))
         if fresh:  # every robot holds every neighbour's features of this step: the model's own product
             return conv.propagate(norm, x=x, edge_weight=None)
-        held = torch.from_numpy(np.stack([r.payload for r in got])).to(x.device, x.dtype)  # [B, N, N, F]
-        valid = torch.from_numpy(np.stack([r.valid for r in got])).to(x.device)
-        weights = torch.where(adj & valid, w_own * dinv[:, :, None], 0.0)
-        return torch.einsum("bij,bijf->bif", weights, held).reshape(b * n, -1)
+        weights = (w_own * dinv[:, :, None]).double().cpu().numpy()  # [B, N, N]: i's w_ij deg_i^-1/2
+        sums = np.stack([r.weighted_sum(np.where(a, w, 0.0)) for r, a, w in zip(got, adj.cpu().numpy(), weights)])
+        return torch.from_numpy(sums).to(x.device, x.dtype).reshape(b * n, -1)

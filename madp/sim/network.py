@@ -71,6 +71,7 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import asdict, dataclass, fields
+from functools import cached_property
 
 import numpy as np
 
@@ -229,12 +230,35 @@ class NetworkSettings:
 @dataclass(frozen=True)
 class Received:
     """One channel's inbox of every robot at one step: ``valid [N, N]`` bool (robot i holds a message
-    from robot j; never i = j), ``payload [N, N, F]`` (its content, 0 where not valid) and
-    ``sent_step [N, N]`` int64 (the step it was sent, -1 where not valid)."""
+    from robot j; never i = j), ``sent_step [N, N]`` int64 (the step it was sent, -1 where not valid)
+    and ``sent {step: [N, F]}`` (what every robot sent at each step some message held was sent;
+    F = ``width``).
+    ``payload [N, N, F]`` is the held content (0 where not valid), built when first read;
+    :meth:`weighted_sum` reduces the inbox without building it."""
 
     valid: np.ndarray
-    payload: np.ndarray
     sent_step: np.ndarray
+    sent: dict[int, np.ndarray]
+    width: int
+
+    @cached_property
+    def payload(self) -> np.ndarray:
+        n = len(self.valid)
+        out = np.zeros((n, n, self.width))
+        for t, rows in self.sent.items():
+            i, j = np.nonzero(self.sent_step == t)
+            out[i, j] = rows[j]
+        return out
+
+    def weighted_sum(self, weights: np.ndarray) -> np.ndarray:
+        """``[N, F]``: row i is the sum over held messages j of ``weights[i, j]`` times their content
+        (``weights [N, N]``; entries where nothing is held count nothing)."""
+        out = np.zeros((len(self.valid), self.width))
+        for t, rows in self.sent.items():
+            held = self.sent_step == t
+            senders = held.any(axis=0)  # only held content enters the sum (a sender's other rows may be anything)
+            out += np.where(held, weights, 0.0)[:, senders] @ rows[senders]
+        return out
 
     def messages(self) -> list[list[Message]]:
         """Each robot's held messages as :class:`Message`\\ s ``(sender, step sent, position, token)``,
@@ -282,6 +306,7 @@ class Network:
         self.failed = failed  # [N] bool: the robots that stop at some step
         self._stops_at = np.where(failed, settings.fail_step, np.iinfo(np.int64).max)  # [N]: the step each stops
         self._true: dict[int, np.ndarray] = {}  # step -> the true positions [N, 2] (as far back as the delay)
+        self._range: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step -> (its positions, in_range)
         self._channels: dict[str, _Channel] = {}
         self._bursts: dict[str, tuple[int, np.ndarray]] = {}  # "links" -> (step, the links' bad state [N, N])
         self._bytes: dict[str, dict[int, np.ndarray]] = {}  # channel -> step -> bytes each robot sent [N]
@@ -313,6 +338,8 @@ class Network:
         oldest = min([int(step)] + [ch.processed + 1 for ch in self._channels.values()]) - self.settings.delay_steps
         for t in [t for t in self._true if t < oldest]:
             del self._true[t]
+        for t in [t for t in self._range if t not in self._true]:
+            del self._range[t]
 
     # --- messages -----------------------------------------------------------------------------------
     def _positions(self, step: int) -> np.ndarray:
@@ -322,9 +349,14 @@ class Network:
         return x
 
     def in_range(self, step: int) -> np.ndarray:
-        """[N, N] bool: receiver i and sender j closer than r_c at ``step`` (true positions; i ≠ j)."""
+        """[N, N] bool: receiver i and sender j closer than r_c at ``step`` (true positions; i ≠ j).
+        Every channel of a step reads the same links: computed once per step and kept with its positions."""
         x = self._positions(step)
-        return closer_than(x[:, None] - x[None], self.comm_radius_m) & ~np.eye(self.num_robots, dtype=bool)
+        cached = self._range.get(int(step))
+        if cached is None or cached[0] is not x:
+            cached = (x, closer_than(x[:, None] - x[None], self.comm_radius_m) & ~np.eye(self.num_robots, dtype=bool))
+            self._range[int(step)] = cached
+        return cached[1].copy()
 
     def lost(self, channel: str, step: int) -> np.ndarray:
         """[N, N] bool: the messages of ``channel`` sent at ``step`` that the network loses (receiver i, sender j)."""
@@ -419,11 +451,8 @@ class Network:
         valid = ch.stamps >= 0
         held = set(np.unique(ch.stamps[valid]).tolist())
         ch.sent = {t: m for t, m in ch.sent.items() if t in held or t > ch.processed - self.settings.delay_steps}
-        out = np.zeros((n, n, payload.shape[1]))
-        for t in held:
-            i, j = np.nonzero(ch.stamps == t)
-            out[i, j] = ch.sent[t][0][j]
-        return Received(valid, out, np.where(valid, ch.stamps, -1))
+        return Received(valid, np.where(valid, ch.stamps, -1), {t: ch.sent[t][0] for t in sorted(held)},
+                        payload.shape[1])
 
     def links(self, channel: str = "position") -> np.ndarray:
         """[N, N] int8: what happened on each link (receiver i, sender j) of ``channel`` at the last

@@ -126,3 +126,19 @@ def test_settings_parse_from_text():
         NetworkSettings.parse("latency=3")
     with pytest.raises(SettingError, match="expected a number"):
         NetworkSettings.parse("loss=high")
+
+
+def test_weighted_sum_reduces_the_held_messages_of_every_step_as_the_payload_does():
+    n = 10
+    rng = np.random.default_rng(3)
+    net = _net(n, loss=0.4, max_age_steps=3)
+    for t in range(12):
+        net.record(t, _line(n))
+        sent = rng.normal(size=(n, 5))
+        sent[0] = np.nan  # robot 0's messages are never held below: their content may not leak into a sum
+        rec = net.exchange("c", t, sent, senders=np.arange(n) != 0)
+        weights = rng.normal(size=(n, n))
+        assert len(np.unique(rec.sent_step[rec.valid])) > (1 if t >= 3 else 0)  # messages of several steps
+        np.testing.assert_allclose(rec.weighted_sum(weights), np.einsum("ij,ijf->if", np.where(rec.valid, weights, 0),
+                                                                        rec.payload), rtol=1e-12, atol=1e-12)
+        assert not rec.valid[:, 0].any()
