@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +26,10 @@ PAGES = [ROOT / "README.md", ROOT / "docs"]
 
 def write_run(root: Path, rel: str, suite: str, groups: dict[str, int], costs: dict[str, np.ndarray]) -> None:
     """A suite directory of madp eval: ``costs[controller]`` holds one final cost per environment, the
-    environments being ``groups``' in order (group → count)."""
+    environments being ``groups``' in order (group → count; an environment's seed depends on its group
+    and index alone, as the suites' do)."""
     envs = [(g, i) for g, n in groups.items() for i in range(n)]
-    rows = [(suite, g, i, 1000 + 10 * k + i, c, float(costs[c][k]), 1.0)
+    rows = [(suite, g, i, 1000 * (1 + zlib.crc32(g.encode()) % 1000) + i, c, float(costs[c][k]), 1.0)
             for c in costs for k, (g, i) in enumerate(envs)]
     names = ["suite", "group", "env", "scenario_seed", "controller", "final_cost", "mean_step_ms"]
     table = pa.table({n: [r[j] for r in rows] for j, n in enumerate(names)})
@@ -138,3 +140,26 @@ def test_no_undated_page_states_a_result_of_its_own():
         text = BLOCK.sub("", page.read_text(encoding="utf-8"))
         hits += [f"{page.relative_to(ROOT)}: {m.group()}" for m in FIGURE.finditer(text)]
     assert not hits, hits
+
+
+def test_a_controllers_groups_may_come_from_separate_runs(tmp_path):
+    rng = np.random.default_rng(1)
+    a, b, d = rng.uniform(0.2, 0.4, 4), rng.uniform(0.2, 0.4, 3), rng.uniform(0.5, 0.9, 7)
+    write_run(tmp_path, "m-1/faults", "faults", {"ideal": 4}, {"madp": a})
+    write_run(tmp_path, "m-2/faults", "faults", {"loss_10": 3}, {"madp": b})
+    write_run(tmp_path, "d-1/faults", "faults", {"ideal": 4, "loss_10": 3}, {"dcvt": d})
+    runs = {k: {"date": "2026-01-01", "commit": "abc1234"} for k in ("m-1", "m-2", "d-1")}
+    (tmp_path / "kept.json").write_text(json.dumps({"default": {"dirs": ["m-1/faults", "m-2/faults", "d-1/faults"]},
+                                                    "runs": runs}))
+    cols = load_kept(tmp_path).default["faults"]
+    madp = cols["controller"] == "madp"
+    assert sorted(cols["final_cost"][madp].tolist()) == sorted(np.concatenate([a, b]).tolist())
+    (tmp_path / "kept.json").write_text(json.dumps({"default": {"dirs": ["m-1/faults", "d-1/faults"]}, "runs": runs}))
+    with pytest.raises(InputError, match="madp' on 4 of 7"):
+        load_kept(tmp_path)
+    write_run(tmp_path, "m-3/faults", "faults", {"ideal": 4}, {"madp": a})
+    runs["m-3"] = runs["m-1"]
+    (tmp_path / "kept.json").write_text(json.dumps({"default": {"dirs": ["m-1/faults", "m-2/faults", "m-3/faults",
+                                                                         "d-1/faults"]}, "runs": runs}))
+    with pytest.raises(InputError, match="group 'ideal'.* is in both m-1/faults and m-3/faults"):
+        load_kept(tmp_path)
