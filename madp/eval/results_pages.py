@@ -11,9 +11,11 @@ A *results folder* (the repository's ``docs/results/``) keeps finished suite dir
 
 ``default`` is madp's current default: the directories of one suite are merged (each controller's group
 from one of them; every controller on the same environments), so the classical baselines and the
-learned controllers, or a suite's groups, may come from separate runs. ``options`` are other settings of the learned controllers measured on (some
-of) the default's environments: each is paired with the default environment by environment. ``runs``
-dates each top directory and names the commit it was measured at.
+learned controllers, or a suite's groups, may come from separate runs. ``options`` are other settings
+of the learned controllers measured on (some of) the default's environments: each is paired with the
+default environment by environment. ``runs`` dates each top directory (or a folder inside one,
+measured at another commit) and names the commit it was measured at. The ``faults`` suite's groups
+are networks: the ``network`` blocks pair each with its ideal group, and the scenario tables leave it out.
 
 :func:`render` turns them into named Markdown blocks (:data:`BLOCKS`); :func:`update_pages` writes each
 block between the markers of a page::
@@ -129,9 +131,17 @@ def load_kept(root: str | Path) -> Kept:
     default = _merge(root, spec["default"]["dirs"], "default", configs)
     options = [(opt, _merge(root, opt["dirs"], f"option {opt.get('name')!r}", configs)) for opt in spec.get("options", [])]
     for rel in configs:
-        if rel.split("/")[0] not in spec.get("runs", {}):
+        if run_of(spec, rel) is None:
             raise InputError(f"{root / KEPT_FILE}: runs has no date and commit for {rel.split('/')[0]}")
     return Kept(root, spec, default, options, configs)
+
+
+def run_of(spec: dict[str, Any], rel: str) -> dict[str, Any] | None:
+    """The ``runs`` entry of directory ``rel``: the longest key that is ``rel`` or a folder above it
+    (a top directory, or one of its runs measured at another commit)."""
+    parts = rel.split("/")
+    keys = ["/".join(parts[:k]) for k in range(len(parts), 0, -1)]
+    return next((spec.get("runs", {})[k] for k in keys if k in spec.get("runs", {})), None)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -263,7 +273,7 @@ def provenance_table(kept: Kept) -> str:
                    "measured", "commit"]), _row(["---"] * 7)]
     for rel in sorted(kept.configs, key=natural_key):
         cfg = kept.configs[rel]
-        run = kept.spec["runs"][rel.split("/")[0]]
+        run = run_of(kept.spec, rel)
         checkpoints = ", ".join(f"{k} `{v.get('sha256', '')[:12]}`" for k, v in sorted((cfg.get("checkpoints") or {}).items()))
         envs = len(cfg.get("env_keys") or [])
         ctrl = _controllers_of(kept, rel)
@@ -274,16 +284,27 @@ def provenance_table(kept: Kept) -> str:
 
 
 def network_tables(kept: Kept) -> tuple[str, str]:
-    """The kept faults suite's tables (:func:`madp.eval.faults.faults_sections`): every group paired with
-    the ideal network on the same environments, then the rest (the survivors' reference, bytes on the
-    air, environments that end above J(0))."""
+    """The kept faults suite's tables. ``network``: per group and controller the paired difference
+    against the ideal network on the same environments (± SE), under a first row of the ideal
+    network's means. ``network-detail``: :func:`madp.eval.faults.faults_sections` (the same pairs with
+    each group's mean, the survivors' reference, bytes on the air, environments that end above J(0))."""
     if NETWORK_SUITE not in kept.default:
         return (f"No kept `{NETWORK_SUITE}` results.",) * 2
     from .faults import faults_sections
 
     cols = kept.default[NETWORK_SUITE]
-    _, sections = faults_sections(cols, order_controllers(cols["controller"].tolist()))
-    return sections[0], "\n\n".join(sections[1:]) or "Nothing more to show."
+    controllers = order_controllers(cols["controller"].tolist())
+    summary, sections = faults_sections(cols, controllers)
+    pairs = summary["paired_against_ideal"]
+    cell = {(r["group"], r["controller"]): r for r in pairs}
+    ideal = {c: float(cols["final_cost"][(cols["group"] == "ideal") & (cols["controller"] == c)].mean()) for c in controllers}
+    n = max((r["n"] for r in pairs), default=0)
+    lines = [_row(["network", *map(display_name, controllers)]), _row(["---"] * (len(controllers) + 1)),
+             _row([f"ideal: J(600)/J(0) ({n})", *(f"{ideal[c]:.3f}" for c in controllers)])]
+    for g in dict.fromkeys(r["group"] for r in pairs):
+        lines.append(_row([f"`{g}`", *("–" if (g, c) not in cell else f"{cell[g, c]['diff']:+.3f} ± {cell[g, c]['se']:.3f}"
+                                        for c in controllers)]))
+    return "\n".join(lines), "\n\n".join(sections)
 
 
 def _controllers_of(kept: Kept, rel: str) -> list[str]:

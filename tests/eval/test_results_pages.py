@@ -148,7 +148,7 @@ def test_a_controllers_groups_may_come_from_separate_runs(tmp_path):
     write_run(tmp_path, "m-1/faults", "faults", {"ideal": 4}, {"madp": a})
     write_run(tmp_path, "m-2/faults", "faults", {"loss_10": 3}, {"madp": b})
     write_run(tmp_path, "d-1/faults", "faults", {"ideal": 4, "loss_10": 3}, {"dcvt": d})
-    runs = {k: {"date": "2026-01-01", "commit": "abc1234"} for k in ("m-1", "m-2", "d-1")}
+    runs = {k: {"date": "2026-01-01", "commit": "abc1234"} for k in ("m-1", "m-2/faults", "d-1")}  # a folder of its own
     (tmp_path / "kept.json").write_text(json.dumps({"default": {"dirs": ["m-1/faults", "m-2/faults", "d-1/faults"]},
                                                     "runs": runs}))
     cols = load_kept(tmp_path).default["faults"]
@@ -163,3 +163,19 @@ def test_a_controllers_groups_may_come_from_separate_runs(tmp_path):
                                                                          "d-1/faults"]}, "runs": runs}))
     with pytest.raises(InputError, match="group 'ideal'.* is in both m-1/faults and m-3/faults"):
         load_kept(tmp_path)
+
+
+def test_the_network_block_pairs_every_group_with_the_ideal_network(tmp_path):
+    rng = np.random.default_rng(2)
+    costs = {c: rng.uniform(0.2, 0.9, 10) for c in ("dcvt", "madp")}  # ideal 0-4, loss_30 5-9 (same environments)
+    write_run(tmp_path, "f-1/faults", "faults", {"ideal": 5, "loss_30": 5}, costs)
+    (tmp_path / "kept.json").write_text(json.dumps({"default": {"dirs": ["f-1/faults"]},
+                                                    "runs": {"f-1": {"date": "2026-01-01", "commit": "abc1234"}}}))
+    blocks = render(load_kept(tmp_path))
+    assert "faults" not in blocks["headline"]  # networks are not scenarios: their own blocks only
+    d = {c: v[5:] - v[:5] for c, v in costs.items()}
+    se = {c: v.std(ddof=1) / np.sqrt(5) for c, v in d.items()}
+    assert f"| ideal: J(600)/J(0) (5) | {costs['dcvt'][:5].mean():.3f} | {costs['madp'][:5].mean():.3f} |" in blocks["network"]
+    assert (f"| `loss_30` | {d['dcvt'].mean():+.3f} ± {se['dcvt']:.3f} | {d['madp'].mean():+.3f} ± {se['madp']:.3f} |"
+            in blocks["network"])
+    assert f"{costs['madp'][5:].mean():.3f}: {d['madp'].mean():+.3f} ± {se['madp']:.3f}" in blocks["network-detail"]
