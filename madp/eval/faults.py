@@ -203,7 +203,7 @@ def faults_sections(results, controllers: Sequence[str]) -> tuple[dict, list[str
     if out["paired_against_ideal"]:
         md.append(paired_markdown(out["paired_against_ideal"]))
     if out["paired_against_reference"]:
-        md.append(paired_markdown(out["paired_against_reference"], "the same survivors from the start (survivors_25)"))
+        md.append(paired_markdown(out["paired_against_reference"], "`survivors_25`"))
     if out["bytes_per_robot_step"]:
         md.append(_grid(out["bytes_per_robot_step"], "Bytes each robot put on the air per step (every channel, "
                         "mean over the environments):", lambda r: f"{r['bytes_per_robot_step']:.0f}"))

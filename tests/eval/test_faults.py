@@ -76,7 +76,7 @@ def test_faults_suite_writes_its_plot_and_records_the_links(tmp_path):
     assert (suite_dir / "faults.png").stat().st_size > 0
     md = (suite_dir / "summary.md").read_text()
     assert "paired by environment" in md and "| loss_50 | " in md and "| fail_25 | " in md
-    assert "against the same survivors from the start" in md and "Bytes each robot put on the air" in md
+    assert "against `survivors_25`, paired" in md and "Bytes each robot put on the air" in md
     assert "| no_comm | 35 |" in md  # a lost message was still put on the air
     _, meta, msgs = _read(suite_dir / "rollouts" / "ideal-000-dcvt.mcap")
     assert any(k.startswith("network.") for k in next(iter(meta.values())))
