@@ -169,7 +169,7 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
     if sampling.select in ("oracle", "oracle_cell"):
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
-    if sampling.select in ("value", "value_explore"):
+    if sampling.select in ("value", "value_explore", "value_joint"):
         raise SettingError("select", f"{sampling.select}'s map prior is not exported: the robot runtime runs none, cell, mppi, "
                                      "medoid and explore (evaluate value with --runtime torch)")
     policy = Path(policy)

@@ -22,7 +22,8 @@ if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
 __all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
-           "LONE_PRIOR_SHARE", "lone_radius_m", "lone_steps", "map_prior", "map_views", "medoid_index", "mppi_weights", "unexplored_blocks"]
+           "LONE_PRIOR_SHARE", "joint_copy", "lone_radius_m", "lone_steps", "map_prior", "map_views", "medoid_index",
+           "mppi_weights", "unexplored_blocks"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
@@ -437,6 +438,16 @@ def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np
         z = np.where(spread > 0, (c - c.min(axis=1, keepdims=True)) / (temperature * spread), 0.0)
     w = np.exp(-z)
     return w / w.sum(axis=1, keepdims=True)
+
+
+def joint_copy(costs: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Per robot, the copy k of least summed cost over its neighbourhood: ``costs [R, K]`` (each
+    robot's own cost of its copy k), ``neighbours [R, R]`` bool (robot i holds robot j's costs of
+    this step; the diagonal is counted whether set or not) -> ``[R]`` indices. Copy k of every
+    neighbourhood starts from the same noise of each robot, so robots whose neighbourhoods agree on k
+    keep actions of one joint sample (ties: the lowest k)."""
+    near = np.asarray(neighbours, dtype=bool) | np.eye(len(costs), dtype=bool)
+    return (near.astype(np.float64) @ np.asarray(costs, dtype=np.float64)).argmin(1)
 
 
 def medoid_index(candidates_mps: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ from madp.errors import InputError, SettingError
 from madp.models.map_prior import MapPrior, prior_inputs, prior_targets, prior_weights, window_masks
 from madp.policies import SamplingSettings
 from madp.policies.checkpoint import load_map_prior, load_policy
+from madp.robot.choice import joint_copy
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.training.map_prior import collect, train
 from tests.test_reliability_errors import cli
@@ -83,6 +84,18 @@ def test_the_value_rule_acts_with_the_prior_and_refuses_a_file_without_one(train
         make_controller("madp", str(SHIPPED), sampling=sampling)
     floor = make_controller("madp", str(d / "policy.safetensors"), sampling=SamplingSettings.of(select="value_explore"))
     assert np.isfinite(floor(CoverageEnv(Scenario.random(3, SimParams())))).all()
+    joint = make_controller("madp", str(d / "policy.safetensors"), sampling=SamplingSettings.of(select="value_joint"))
+    assert np.isfinite(joint(CoverageEnv(Scenario.random(3, SimParams())))).all()
+
+
+def test_joint_copy_keeps_one_copy_per_neighbourhood():
+    costs = np.array([[0.0, 5.0], [9.0, 1.0], [9.0, 1.0], [1.0, 0.0]])  # robots 0-2 one neighbourhood, 3 alone
+    near = np.zeros((4, 4), dtype=bool)
+    near[:3, :3] = True
+    assert joint_copy(costs, near).tolist() == [1, 1, 1, 1]  # robot 0 gives up its own best for the pack's
+    assert costs.argmin(1).tolist() == [0, 1, 1, 1]
+    assert joint_copy(costs, np.zeros((4, 4), dtype=bool)).tolist() == [0, 1, 1, 1]  # alone: its own best
+    assert joint_copy(np.zeros((2, 3)), np.ones((2, 2), dtype=bool)).tolist() == [0, 0]  # ties: the lowest copy
 
 
 def test_bad_examples_files_are_one_line_errors(trained, tmp_path):
