@@ -97,10 +97,10 @@ class LPACPolicy:
         b, n = adj.shape[:2]
         xs = x.reshape(b, n, -1) * dinv[:, :, None]
         got = [e.network.exchange(channel, e.steps, xs[k].double().cpu().numpy()) for k, e in enumerate(envs)]
-        fresh = all(bool(np.all(r.valid[a] & (r.sent_step[a] == e.steps)))
-                    for r, e, a in zip(got, envs, adj.cpu().numpy()))
+        edges = adj.cpu().numpy()  # [B, N, N]: i's graph
+        fresh = all(bool(np.all(r.valid[a] & (r.sent_step[a] == e.steps))) for r, e, a in zip(got, envs, edges))
         if fresh:  # every robot holds every neighbour's features of this step: the model's own product
             return conv.propagate(norm, x=x, edge_weight=None)
         weights = (w_own * dinv[:, :, None]).double().cpu().numpy()  # [B, N, N]: i's w_ij deg_i^-1/2
-        sums = np.stack([r.weighted_sum(np.where(a, w, 0.0)) for r, a, w in zip(got, adj.cpu().numpy(), weights)])
+        sums = np.stack([r.weighted_sum(np.where(a, w, 0.0)) for r, a, w in zip(got, edges, weights)])
         return torch.from_numpy(sums).to(x.device, x.dtype).reshape(b * n, -1)

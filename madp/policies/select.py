@@ -33,7 +33,8 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   first where it expects much.
 * ``value_joint``: ``value``, with one copy per neighbourhood: copy k of every robot's
   neighbourhood starts from the same noise of each robot, so each robot sums its neighbours' ``value``
-  costs of copy k with its own (the neighbours send their K costs in one more round of messages) and
+  costs of copy k with its own (the neighbours whose positions it holds send their K costs in one
+  more round of messages, modelled as delivered wherever the position was) and
   keeps its action of the copy of least sum. Robots whose neighbourhoods agree keep actions of one
   joint sample, not each its own best of K different ones.
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
@@ -69,6 +70,8 @@ from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value", "value_explore", "value_joint")
+#: The rules that rank candidates on a policy file's learned map prior (madp value train).
+VALUE_RULES = ("value", "value_explore", "value_joint")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
@@ -115,15 +118,6 @@ def value_views(env: CoverageEnv, views: LocalViews, map_prior, floor: bool = Fa
                                                 GRID_M, mean), sensed=views.weights)
 
 
-def neighbour_costs_held(env: CoverageEnv) -> np.ndarray:
-    """``[N, N]`` bool: whose costs of this step robot i holds for ``value_joint``: the neighbours it
-    holds a position of within r_c (:meth:`CoverageEnv.neighbour_view`). The K costs travel in one
-    more round of messages within the step, modelled as delivered wherever the position was."""
-    known, held = env.neighbour_view()
-    own = env.positions_m
-    return known & (np.linalg.norm(held - own[:, None], axis=-1) < env.params.comm_radius_m)
-
-
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, map_prior=None) -> np.ndarray:
     """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
     (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
@@ -140,14 +134,14 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
     views = local_views(env, true_map=select == "oracle_cell")
     if select == "explore":
         views = explore_prior(env, views)
-    if select in ("value", "value_explore", "value_joint"):
+    if select in VALUE_RULES:
         if map_prior is None:
             raise SettingError("select", f"{select} scores candidates on a learned map prior: expected a policy file "
                                          "that carries one (madp value train)")
         views = value_views(env, views, map_prior, floor=select == "value_explore")
     costs = local_cell_costs(views, per_robot, env.params)
     if select == "value_joint":
-        chosen = np.take_along_axis(per_robot, joint_copy(costs, neighbour_costs_held(env))[:, None, None], 1)[:, 0]
+        chosen = np.take_along_axis(per_robot, joint_copy(costs, env.neighbour_view()[0])[:, None, None], 1)[:, 0]
     elif select in ("cell", "explore", "oracle_cell", "value", "value_explore"):
         chosen = np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]
     elif select == "mppi":
