@@ -29,7 +29,9 @@ SELECT_NAMES = {"oracle": "the best of {k} joint samples by the true J after the
                 "explore": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map, its "
                            "unexplored blocks given the mean importance of its explored ones",
                 "oracle_cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on the TRUE map "
-                               "(ORACLE: an upper bound for the cell rule, not a controller robots could run)"}
+                               "(ORACLE: an upper bound for the cell rule, not a controller robots could run)",
+                "oracle_joint": "one copy of {k} per neighbourhood by the summed Voronoi cell costs on the TRUE map "
+                                "(ORACLE: an upper bound for value_joint, not a controller robots could run)"}
 
 
 def _cell(st: Mapping[str, Any] | None) -> str:

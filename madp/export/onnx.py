@@ -32,7 +32,7 @@ from madp.io.lock import locked_dir
 from madp.io.owned import foreign_files
 from madp.policies.checkpoint import load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
-from madp.policies.select import GRID_M, VALUE_RULES
+from madp.policies.select import GRID_M, ORACLE_RULES, VALUE_RULES
 from madp.sim import SimParams
 
 __all__ = ["FORMAT", "GRAPHS", "OPSET", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
@@ -167,7 +167,7 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
     if sampling.fixed_noise:
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
-    if sampling.select in ("oracle", "oracle_cell"):
+    if sampling.select in ORACLE_RULES:
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
     if sampling.select in VALUE_RULES:
         raise SettingError("select", f"{sampling.select}'s map prior is not exported: the robot runtime runs none, cell, mppi, "

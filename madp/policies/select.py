@@ -37,18 +37,22 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   more round of messages, modelled as delivered wherever the position was) and
   keeps its action of the copy of least sum. Robots whose neighbourhoods agree keep actions of one
   joint sample, not each its own best of K different ones.
+* ``oracle_joint`` — **an upper bound for** ``value_joint``, **not a controller robots could run**:
+  ``value_joint`` with the true world map in each robot's window (a perfect map prior): what a
+  one-step choice of one copy per neighbourhood can reach.
 * ``medoid``: each robot keeps the candidate closest to its others (least summed distance,
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
 A robot that holds no neighbour (out of range, or every message lost) does not choose among its
 samples under the rules that read its map (``cell``, ``explore``, ``value``, ``value_explore``, ``value_joint``,
-``mppi``, ``oracle_cell``): it takes the Lloyd step of the disc it would expect to cover around where it last
+``mppi``, ``oracle_cell``, ``oracle_joint``): it takes the Lloyd step of the disc it would expect to cover around where it last
 heard a neighbour (:func:`madp.robot.choice.lone_steps`).
 
 The local rules read only what a robot knows: :func:`local_views` collects, per robot, its own map's
 window, its own position and its neighbours' positions; :func:`local_cell_costs` and
 :func:`mppi_weights` take nothing else, and row i of their result depends on row i of their inputs
-alone. Only :func:`oracle_costs` and ``oracle_cell``'s true-map views read the world map.
+alone. Only :func:`oracle_costs` and the true-map views of ``oracle_cell`` and ``oracle_joint`` read the
+world map.
 
 What a robot computes for itself (:func:`local_views`, :func:`explore_prior`, :func:`local_cell_costs`,
 :func:`mppi_weights`, :func:`medoid_index`) lives in :mod:`madp.robot.choice` (no torch, so the robot runtime uses it too) and
@@ -69,7 +73,10 @@ from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
-SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value", "value_explore", "value_joint")
+SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value", "value_explore", "value_joint",
+           "oracle_joint")
+#: The rules that read the world map: upper bounds, not controllers robots could run.
+ORACLE_RULES = ("oracle", "oracle_cell", "oracle_joint")
 #: The rules that rank candidates on a policy file's learned map prior (madp value train).
 VALUE_RULES = ("value", "value_explore", "value_joint")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
@@ -123,7 +130,7 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
     (copy k of the batch in row k; module docstring). ``oracle`` reads the environment; ``cell`` and
     ``mppi`` only each robot's :func:`local_views`; ``medoid`` only each robot's own candidates;
     ``explore`` those and its own explored map; ``value`` those and ``map_prior``
-    (:class:`madp.models.map_prior.MapPrior`); ``oracle_cell`` the true-map views."""
+    (:class:`madp.models.map_prior.MapPrior`); ``oracle_cell`` and ``oracle_joint`` the true-map views."""
     if select == "none":
         return candidates_mps[0]
     if select == "oracle":
@@ -131,7 +138,7 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if select == "medoid":
         return np.take_along_axis(per_robot, medoid_index(per_robot)[:, None, None], 1)[:, 0]
-    views = local_views(env, true_map=select == "oracle_cell")
+    views = local_views(env, true_map=select in ("oracle_cell", "oracle_joint"))
     if select == "explore":
         views = explore_prior(env, views)
     if select in VALUE_RULES:
@@ -140,7 +147,7 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
                                          "that carries one (madp value train)")
         views = value_views(env, views, map_prior, floor=select == "value_explore")
     costs = local_cell_costs(views, per_robot, env.params)
-    if select == "value_joint":
+    if select in ("value_joint", "oracle_joint"):
         chosen = np.take_along_axis(per_robot, joint_copy(costs, env.neighbour_view()[0])[:, None, None], 1)[:, 0]
     elif select in ("cell", "explore", "oracle_cell", "value", "value_explore"):
         chosen = np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]

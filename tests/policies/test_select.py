@@ -18,7 +18,7 @@ from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings, noise_generator
 from madp.policies.select import explore_prior, local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
-from madp.robot.choice import lone_steps
+from madp.robot.choice import joint_copy, lone_steps
 from madp.sim.rules import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.robot_maps import EXPLORED_BLOCK_M
@@ -295,15 +295,32 @@ def test_bad_selection_settings_are_refused(select, candidates, setting):
     assert e.value.setting == setting and "\n" not in str(e.value)
 
 
+def test_oracle_joint_is_the_joint_choice_on_the_true_map():
+    """``oracle_joint`` keeps, for each robot, its action of the copy whose cell costs on the true map,
+    summed over the robot and the neighbours it holds, are least (the bound for ``value_joint``); a
+    robot that hears no one takes its own step."""
+    base = CoverageEnv(_scenario(ROBOTS))
+    cands = _candidates(2, 5)
+    views = local_views(base, true_map=True)
+    per_robot = cands.transpose(1, 0, 2)
+    copy_of = joint_copy(local_cell_costs(views, per_robot, base.params), base.neighbour_view()[0])
+    lone, steps = lone_steps(views, base.params)
+    want = np.where(lone[:, None], steps, np.take_along_axis(per_robot, copy_of[:, None, None], 1)[:, 0])
+    np.testing.assert_array_equal(select_actions("oracle_joint", base, cands), want)
+    own_best = local_cell_costs(views, per_robot, base.params).argmin(1)
+    assert (copy_of != own_best)[~lone].any()  # some robot gives up its own best for its neighbourhood's
+
+
 @pytest.mark.parametrize("args,line", [
     (["eval", "--select", "oracle", "--candidates", "1"], "madp: error: --select/--candidates: select oracle chooses among several samples "
                                      "per robot: expected candidates > 1, got 1"),
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--select", "none", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell, value, value_explore, value_joint), got select none"),
+                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, oracle_joint), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
-                                                        "mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, got 'vote'"),
+                                                        "mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, "
+                                                        "oracle_joint, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     """(A rule named alone takes its default K: ``SamplingSettings.of``, tested below.)"""
