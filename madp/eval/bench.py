@@ -19,7 +19,7 @@
    them (:mod:`madp.policies.select`): :func:`bench_select`.
 7. With ``robot`` (``--robot``, the default where onnxruntime imports): one robot's control step through
    the files of ``madp export`` on one thread, at the evaluation default's sampling, beside PyTorch's per robot
-   (:mod:`madp.export.bench`).
+   (:mod:`madp.export.bench`); with a ``--madp`` policy file that carries a map prior, also under ``value``.
 8. With ``roofline`` (``--roofline``): FLOPs, bytes and time of the evaluation default's control step by
    part (observations, perception, masks, encoder, denoiser × K × S, selection) against this machine's
    measured matmul peak, fp32 and bf16 (:mod:`madp.eval.roofline`).
@@ -261,7 +261,11 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
     if robot:
         from madp.export.bench import bench_robot_runtime
 
+        from madp.policies.checkpoint import load_map_prior
+
         out["robot_runtime"] = bench_robot_runtime(checkpoint, repeats=repeats)
+        if checkpoint is not None and load_map_prior(checkpoint) is not None:  # its value rule through the export too
+            out["robot_runtime_value"] = bench_robot_runtime(checkpoint, repeats=repeats, select="value")
     if roofline:
         from .roofline import roofline as measure_roofline
 
@@ -314,6 +318,8 @@ def format_table(r: dict) -> list[str]:
         from madp.export.bench import format_robot_runtime
 
         lines += format_robot_runtime(r["robot_runtime"])
+        if r.get("robot_runtime_value"):
+            lines += format_robot_runtime(r["robot_runtime_value"])
     if r.get("roofline"):
         from .roofline import format_roofline
 

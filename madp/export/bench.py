@@ -6,7 +6,8 @@ The swarm: N robots of a random uniform-launch scenario at its first step, the e
 sampling (:class:`madp.policies.SamplingSettings`' defaults). A robot's step is what it runs
 per control step once it has sensed: its token (perception graph, neighbourhood offset) and its act
 (inbox checks, encoder once, denoiser S times on K samples, the choice); its observation and map
-views are computed before timing (as the simulator gives them). The PyTorch figure is
+views are computed before timing (as the simulator gives them), except that under a ``value`` rule the
+map prior's graph runs on the robot's own window inside the timing. The PyTorch figure is
 :meth:`madp.policies.MADPPolicy.act_batch` on the whole swarm (observations and the choice included)
 divided by N. Medians of ``repeats`` passes over all robots, one untimed pass first.
 """
@@ -23,28 +24,37 @@ __all__ = ["bench_robot_runtime", "format_robot_runtime"]
 
 
 def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, candidates: int | None = None, repeats: int = 5,
-                        seed: int = 0) -> dict:
+                        seed: int = 0, select: str | None = None) -> dict:
     """Latency per robot per control step of the runtime (one thread) and of PyTorch (one thread), at the
-    evaluation default's sampling (``candidates``: another K)."""
+    evaluation default's sampling (``candidates``: another K; ``select``: another rule, ``value`` and
+    ``value_explore`` with the checkpoint's map prior)."""
     import torch
 
     from madp.models.bench import _threads
     from madp.policies import MADPPolicy, SamplingSettings, load, noise_generator, shipped_checkpoint
-    from madp.robot.choice import explore_prior, local_views
+    from madp.policies.checkpoint import load_map_prior
+    from madp.robot.choice import GRID_M, local_views, unexplored_blocks
     from madp.robot import RobotRuntime
+    from madp.robot.prior import prior_inputs, window_masks
+    from madp.robot.runtime import PRIOR_RULES
     from madp.sim import CoverageEnv, Scenario, SimParams
 
     from .onnx import export_policy
 
     path = checkpoint or str(shipped_checkpoint("madp"))
-    sampling = SamplingSettings.of(candidates=candidates)
+    sampling = SamplingSettings.of(select=select, candidates=candidates)
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     with tempfile.TemporaryDirectory() as tmp:
         export_policy(path, Path(tmp), sampling)
         rt = RobotRuntime(tmp, threads=1)
         obs, pos, nbr = env.observations(), env.positions_m, env.neighbours()
-        views = explore_prior(env, local_views(env))
+        base = local_views(env)
+        views = rt.view(env.maps, base)
         rows = [views.row(i) for i in range(num_robots)]
+        windows = None  # the map prior's input per robot (value rules): its graph runs inside the timing
+        if rt.rule in PRIOR_RULES:
+            inside = window_masks(base.origin_m, base.weights.shape[1], GRID_M, env.params.world_size)
+            windows = prior_inputs(base.weights, unexplored_blocks(env.maps, base), inside, GRID_M)
         sent = [rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed) for i in range(num_robots)]
         inboxes = [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(num_robots)]
 
@@ -52,13 +62,16 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
             t0 = time.perf_counter()
             for i in range(num_robots):
                 own = rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed)
+                if windows is not None:
+                    rt.predict_prior(windows[i:i + 1])
                 rt.step(i, 0, obs[i], pos[i], inboxes[i], seed, view=rows[i], own=own)
             return (time.perf_counter() - t0) / num_robots
 
         one_pass()
         robot = [one_pass() for _ in range(repeats)]
     model = load(path, "madp")[0]
-    policy = MADPPolicy(model, "decentralized", sampling)
+    policy = MADPPolicy(model, "decentralized", sampling,
+                        map_prior=load_map_prior(path) if sampling.select in PRIOR_RULES else None)
     gen = noise_generator(seed)
     with _threads(1):
         policy.act_batch([env], [gen])

@@ -8,6 +8,9 @@ What a directory made by :func:`export_policy` holds (the robot runtime :mod:`ma
                        -> ``memory [B, T, d_model]``
 ``denoiser.onnx``      Psi_D and the head: ``noisy_actions [B, T, 2]``, ``step [B]`` int64, ``memory``,
                        ``positions_m``, ``mask`` -> ``eps [B, T, 2]`` (the predicted noise)
+``map_prior.onnx``     with ``--select value`` or ``value_explore`` only: the policy file's learned map prior
+                       (:class:`madp.models.map_prior.MapPrior`): ``windows [R, 3, H, W]`` float32 ->
+                       ``density [R, H, W]`` (:mod:`madp.robot.prior`)
 ``runtime.json``       what the loop around them needs (:func:`runtime_spec`) and each graph's sha256
 =====================  ====================================================================================
 
@@ -30,12 +33,12 @@ from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import foreign_files
-from madp.policies.checkpoint import load_policy
+from madp.policies.checkpoint import load_map_prior, load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
 from madp.policies.select import GRID_M, ORACLE_RULES, VALUE_RULES
 from madp.sim import SimParams
 
-__all__ = ["FORMAT", "GRAPHS", "OPSET", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
+__all__ = ["EXPORTED_VALUE_RULES", "FORMAT", "GRAPHS", "OPSET", "PRIOR_GRAPH", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
 
 #: ``runtime.json``'s ``format``: the layout the runtime reads.
 FORMAT = "madp-onnx-runtime/1"
@@ -43,6 +46,11 @@ FORMAT = "madp-onnx-runtime/1"
 OPSET = 17
 #: The graphs, by role, and their file names.
 GRAPHS = {"perception": "perception.onnx", "encoder": "encoder.onnx", "denoiser": "denoiser.onnx"}
+#: The map prior's graph (``value`` and ``value_explore`` only), by role, and its file name.
+PRIOR_GRAPH = {"map_prior": "map_prior.onnx"}
+#: The rules with a map prior that the robot runtime runs (``value_joint`` also needs its neighbours'
+#: costs in a round of messages the runtime's protocol does not have).
+EXPORTED_VALUE_RULES = ("value", "value_explore")
 RUNTIME_JSON = "runtime.json"
 
 
@@ -99,24 +107,36 @@ def _axes(name: str) -> dict[int, str]:
     return {0: "batch", 1: "tokens"}
 
 
-def export_graphs(model, out_dir: Path) -> dict[str, Path]:
+def _write_graph(module: nn.Module, example: tuple[Tensor, ...], inputs: tuple[str, ...], outputs: tuple[str, ...],
+                 axes: dict[str, dict[int, str]], path: Path) -> Path:
+    """One ONNX graph of ``module`` at ``path``, written atomically."""
+    with atomic_path(path, ".onnx", fsync=False) as tmp, torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and tracer notes
+        torch.onnx.export(module, example, str(tmp), dynamo=False, opset_version=OPSET, input_names=list(inputs),
+                          output_names=list(outputs), dynamic_axes=axes)
+    return path
+
+
+def export_graphs(model, out_dir: Path, map_prior=None) -> dict[str, Path]:
     """Write the three ONNX graphs of ``model`` (a :class:`madp.models.MADP` in eval mode) into
-    ``out_dir``, each atomically. Returns ``{role: path}``."""
+    ``out_dir``, each atomically, and ``map_prior``'s (:class:`madp.models.map_prior.MapPrior`) when
+    given. Returns ``{role: path}``."""
     model = model.eval()
     example = _example(model)
-    paths = {}
-    for role, (module, inputs, outputs) in graph_modules(model).items():
-        path = out_dir / GRAPHS[role]
-        with atomic_path(path, ".onnx", fsync=False) as tmp, torch.no_grad(), warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation and tracer notes
-            torch.onnx.export(module, tuple(example[n] for n in inputs), str(tmp), dynamo=False, opset_version=OPSET,
-                              input_names=list(inputs), output_names=list(outputs),
-                              dynamic_axes={n: _axes(n) for n in (*inputs, *outputs)})
-        paths[role] = path
+    paths = {role: _write_graph(module, tuple(example[n] for n in inputs), inputs, outputs,
+                                {n: _axes(n) for n in (*inputs, *outputs)}, out_dir / GRAPHS[role])
+             for role, (module, inputs, outputs) in graph_modules(model).items()}
+    if map_prior is not None:
+        side = model.config.obs_size // 2  # any window side: H and W are dynamic
+        paths["map_prior"] = _write_graph(map_prior.eval(), (torch.rand(2, 3, side, side),), ("windows",), ("density",),
+                                          {"windows": {0: "robots", 2: "rows", 3: "cols"},
+                                           "density": {0: "robots", 1: "rows", 2: "cols"}},
+                                          out_dir / PRIOR_GRAPH["map_prior"])
     return paths
 
 
-def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, params: SimParams) -> dict:
+def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, params: SimParams,
+                 map_prior: bool = False) -> dict:
     """``runtime.json``: what the robot's loop needs besides the graphs.
 
     ``sampler``: DPM-Solver++(2M) over S steps as per-step constants: the model is evaluated at
@@ -126,11 +146,12 @@ def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, par
     of the messages a robot listens to) and the world's side (the d4 frame's centre); ``selection``:
     the frame (``d4``: element :func:`madp.robot.frame.frame_element` of the episode's seed and the
     step) and the rule keeping one of K samples per robot (:mod:`madp.policies.select`);
-    ``motion``: the simulator constants the rule moves candidates with; ``source``: the checkpoint."""
+    ``motion``: the simulator constants the rule moves candidates with; ``source``: the checkpoint.
+    ``map_prior``: the export holds the map prior's graph (``graphs`` names it)."""
     cfg = model.config
     solver = model.make_sampler(sampling.sampler, sampling.sampling_steps, sampling.eta)
     return {
-        "format": FORMAT, "kind": "madp", "opset": OPSET, "graphs": dict(GRAPHS),
+        "format": FORMAT, "kind": "madp", "opset": OPSET, "graphs": {**GRAPHS, **(PRIOR_GRAPH if map_prior else {})},
         "model": {"obs_channels": cfg.obs_channels, "obs_size": cfg.obs_size, "z_dim": cfg.z_dim,
                   "token_dim": cfg.token_dim, "d_model": cfg.d_model, "action_dim": cfg.action_dim,
                   "pos_token": cfg.pos_token, "num_train_steps": cfg.num_train_steps},
@@ -161,7 +182,8 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
 
     One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
     settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
-    ``oracle`` rules that read the world)."""
+    ``oracle`` rules that read the world, ``value_joint``), and for a ``value`` rule with a policy file
+    that carries no map prior. With ``value`` or ``value_explore`` the prior is exported too."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
@@ -169,11 +191,16 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
     if sampling.select in ORACLE_RULES:
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
-    if sampling.select in VALUE_RULES:
-        raise SettingError("select", f"{sampling.select}'s map prior is not exported: the robot runtime runs none, cell, mppi, "
-                                     "medoid and explore (evaluate value with --runtime torch)")
+    if sampling.select in VALUE_RULES and sampling.select not in EXPORTED_VALUE_RULES:
+        raise SettingError("select", f"{sampling.select} sums each neighbour's costs of its candidates, a round of messages "
+                                     "the robot runtime's protocol does not have; it runs none, cell, mppi, medoid, explore, "
+                                     "value and value_explore (evaluate value_joint with --runtime torch)")
     policy = Path(policy)
     model, meta = load_policy(policy)
+    prior = load_map_prior(policy) if sampling.select in EXPORTED_VALUE_RULES else None
+    if sampling.select in EXPORTED_VALUE_RULES and prior is None:
+        raise InputError(f"{policy}: carries no map prior, which {sampling.select} ranks candidates on "
+                         "(madp value train adds one)")
     if meta["kind"] != "madp":
         raise InputError(f"{policy}: is a {meta['kind']} checkpoint; madp export writes MADP's graphs "
                          "(docs/guides/export.md: LPAC-K3)")
@@ -185,15 +212,17 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
                          f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}; a robot would command NaN")
     out = Path(out_dir)
     with locked_dir(out):
-        owned = [*GRAPHS.values(), RUNTIME_JSON]
+        owned = [*GRAPHS.values(), *PRIOR_GRAPH.values(), RUNTIME_JSON]
         foreign = foreign_files(out, owned)
         if foreign:
             raise InputError(f"{foreign[0]}: not a file madp export writes; export into an empty --out directory")
         if any((out / name).exists() for name in owned) and not overwrite:
             raise InputError(f"{out}: already holds an export; pass --overwrite to replace it")
         (out / RUNTIME_JSON).unlink(missing_ok=True)  # no loadable export until every graph is written
-        paths = export_graphs(model, out)
-        spec = write_runtime(out, runtime_spec(model, meta, sha256_file(policy), sampling, params or SimParams()), paths)
+        (out / PRIOR_GRAPH["map_prior"]).unlink(missing_ok=True)  # an earlier export's prior, if any
+        paths = export_graphs(model, out, prior)
+        spec = write_runtime(out, runtime_spec(model, meta, sha256_file(policy), sampling, params or SimParams(),
+                                               map_prior=prior is not None), paths)
     return spec
 
 

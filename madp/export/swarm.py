@@ -30,7 +30,7 @@ import torch
 from madp.data_schema.manifest import sha256_file
 from madp.errors import SettingError
 from madp.policies.madp import SamplingSettings, noise_generator
-from madp.robot.choice import MAP_RULES, explore_prior, local_views
+from madp.robot.choice import local_views
 from madp.robot import RobotRuntime
 from madp.sim.network import Message
 
@@ -89,9 +89,7 @@ class OnnxMADPPolicy:
         seed = self.seed if env.scenario.seed is None else env.scenario.seed
         obs, pos = env.observations(), env.estimates_m()
         known, held = env.neighbour_view()  # what each robot holds of the others' positions
-        views = local_views(env) if rt.rule in MAP_RULES else None
-        if views is not None and rt.rule == "explore":
-            views = explore_prior(env, views)
+        views = rt.view(env.maps, local_views(env)) if rt.reads_map else None
         sent = [rt.message(i, env.steps, obs[i], pos[i], held[i][known[i]], seed) for i in range(env.num_robots)]
         self.sent = sent  # what the robots broadcast (recordings)
         if env.network is not None:

@@ -6,11 +6,12 @@ importance of the blocks it has. :class:`MapPrior` predicts it instead, from the
 convolutional network over the window coarsened to cells of :data:`COARSE_M` metres
 (``[R, 3, 16, 16]`` for the 256 m window), whose three channels are each cell's sensed importance per
 m² over its explored part, its explored fraction and its fraction inside the world
-(:func:`prior_inputs`). It returns each cell's importance per m² (``[R, 16, 16]``, ≥ 0).
+(:func:`madp.robot.prior.prior_inputs`). It returns each cell's importance per m² (``[R, 16, 16]``, ≥ 0).
 :func:`prior_weights` adds that prediction to the window's unexplored blocks, as ``explore`` adds
 its mean. Trained against the true map (``madp value train``, :mod:`madp.training.map_prior`).
 
-numpy in, numpy out for the rule; the network itself is torch.
+numpy in, numpy out for the rule; the network itself is torch. What the rule computes around it lives
+in :mod:`madp.robot.prior` (no torch), which the robot runtime shares with the exported network.
 """
 
 from __future__ import annotations
@@ -21,10 +22,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-#: Side (m) of the coarse cells the prior predicts: 4 × 4 of the selection rules' 4 m blocks.
-COARSE_M = 16
-#: Input channels: sensed importance per m² over the explored part, explored fraction, inside fraction.
-PRIOR_CHANNELS = 3
+from madp.robot.prior import COARSE_M, PRIOR_CHANNELS, coarse_sum, fill_prior, prior_inputs, window_masks
+
+__all__ = ["COARSE_M", "PRIOR_CHANNELS", "MapPrior", "MapPriorConfig", "predictor", "prior_inputs", "prior_targets",
+           "prior_weights", "window_masks"]
 
 
 @dataclass(frozen=True)
@@ -63,57 +64,35 @@ class MapPrior(nn.Module):
         return nn.functional.softplus(self.head(h)[:, 0])
 
 
-def window_masks(origin_m: np.ndarray, blocks: int, block_m: int, world_size: int) -> np.ndarray:
-    """``[R, G, G]`` bool: the blocks of each window (lower corner ``origin_m [R, 2]``, G = ``blocks``
-    blocks of ``block_m`` m) whose every cell is inside the world."""
-    lo = origin_m[:, :, None] + block_m * np.arange(blocks)[None, None]  # [R, 2, G]: each block's first cell
-    ok = (lo >= 0) & (lo + block_m - 1 < world_size)
-    return ok[:, 0, :, None] & ok[:, 1, None, :]
-
-
-def _coarse_sum(x: np.ndarray, f: int) -> np.ndarray:
-    """``[R, G, G]`` -> ``[R, G/f, G/f]``: sums over f × f blocks."""
-    r, g = x.shape[0], x.shape[1]
-    rows = x.reshape(r, g // f, f, g).sum(2)  # [R, G/f, G]: contiguous runs of G
-    return rows.reshape(r, g // f, g // f, f).sum(3)
-
-
-def prior_inputs(weights: np.ndarray, unexplored: np.ndarray, inside: np.ndarray, block_m: int) -> np.ndarray:
-    """The network's input ``[R, 3, G/f, G/f]`` float32 (f = COARSE_M / block_m) from a window's block
-    masses ``weights [R, G, G]`` (its own sensed map), its unexplored blocks and its blocks inside the
-    world (both ``[R, G, G]`` bool): per coarse cell, the sensed importance per m² over its explored
-    blocks inside (0 where none), the fraction of its blocks explored and inside, and the fraction inside."""
-    f = COARSE_M // block_m
-    known = inside & ~unexplored
-    n_known = _coarse_sum(known.astype(np.float32), f)
-    mass = _coarse_sum(weights.astype(np.float32) * known, f)
-    density = np.divide(mass, n_known * block_m ** 2, out=np.zeros_like(mass), where=n_known > 0)
-    return np.stack([density, n_known / f ** 2, _coarse_sum(inside.astype(np.float32), f) / f ** 2], 1)
-
-
 def prior_targets(true_weights: np.ndarray, inside: np.ndarray, block_m: int) -> np.ndarray:
     """What the network is trained to predict ``[R, G/f, G/f]`` float32: each coarse cell's true
     importance per m² over its blocks inside the world (0 where none), from the world map's block
     masses ``true_weights [R, G, G]`` in the same windows."""
     f = COARSE_M // block_m
-    n_in = _coarse_sum(inside.astype(np.float64), f)
-    mass = _coarse_sum(np.where(inside, true_weights, 0.0), f)
+    n_in = coarse_sum(inside.astype(np.float64), f)
+    mass = coarse_sum(np.where(inside, true_weights, 0.0), f)
     return np.divide(mass, n_in * block_m ** 2, out=np.zeros_like(mass), where=n_in > 0).astype(np.float32)
 
 
-@torch.inference_mode()
+def predictor(net: MapPrior):
+    """``net`` as the rule's ``predict``: ``x [R, 3, H, W]`` float32 numpy -> ``[R, H, W]`` float64 numpy,
+    on the network's device and dtype, without gradients."""
+    p = next(net.parameters())
+
+    @torch.inference_mode()
+    def predict(x: np.ndarray) -> np.ndarray:
+        return net(torch.from_numpy(np.ascontiguousarray(x)).to(p.device, p.dtype)).float().cpu().numpy().astype(np.float64)
+
+    return predict
+
+
 def prior_weights(net: MapPrior, weights: np.ndarray, unexplored: np.ndarray, inside: np.ndarray,
                   block_m: int, floor: np.ndarray | None = None) -> np.ndarray:
     """``weights [R, G, G]`` (float64 block masses) with each unexplored block inside the world given
     the predicted importance of its coarse cell times the block's area (``explore``'s rule with the
     network's prediction in place of the explored blocks' mean), or ``floor [R, G, G]`` (a mass per
-    block) where that is more."""
+    block) where that is more (:func:`madp.robot.prior.fill_prior`)."""
     if len(weights) == 0:
         return weights
-    x = torch.from_numpy(prior_inputs(weights, unexplored, inside, block_m))
-    p = next(net.parameters())
-    density = net(x.to(p.device, p.dtype)).float().cpu().numpy().astype(np.float64)  # [R, G/f, G/f]
-    r, g, f = weights.shape[0], weights.shape[1], COARSE_M // block_m
-    fill = ((unexplored & inside).reshape(r, g // f, f, g // f, f) * density[:, :, None, :, None] * block_m ** 2
-            ).reshape(r, g, g)
-    return weights + (fill if floor is None else np.maximum(fill, floor))
+    density = predictor(net)(prior_inputs(weights, unexplored, inside, block_m))
+    return fill_prior(weights, unexplored, inside, block_m, density, floor)

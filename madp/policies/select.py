@@ -69,6 +69,7 @@ import numpy as np
 from madp.errors import SettingError
 from madp.robot.choice import (GRID_M, MPPI_TEMPERATURE, LocalViews, explore_prior, local_cell_costs, local_views,
                                joint_copy, lone_steps, medoid_index, mppi_weights, unexplored_blocks)
+from madp.robot.prior import value_view
 from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
 
@@ -115,14 +116,11 @@ def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
 
 def value_views(env: CoverageEnv, views: LocalViews, map_prior, floor: bool = False) -> LocalViews:
     """``views`` with the ``value`` rule's weights: each robot's unexplored blocks inside the world
-    given ``map_prior``'s prediction (:func:`madp.models.map_prior.prior_weights`); ``floor``: at least
+    given ``map_prior``'s prediction (:func:`madp.robot.prior.value_view`); ``floor``: at least
     ``explore``'s mean (``value_explore``)."""
-    from madp.models.map_prior import prior_weights, window_masks
+    from madp.models.map_prior import predictor
 
-    inside = window_masks(views.origin_m, views.weights.shape[1], GRID_M, env.params.world_size)
-    mean = explore_prior(env, views).weights - views.weights if floor else None  # its mass on unexplored blocks
-    return replace(views, weights=prior_weights(map_prior, views.weights, unexplored_blocks(env.maps, views), inside,
-                                                GRID_M, mean), sensed=views.weights)
+    return value_view(env.maps, views, predictor(map_prior), floor)
 
 
 def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, map_prior=None) -> np.ndarray:

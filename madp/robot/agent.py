@@ -9,8 +9,8 @@ the motion rule). Per control step t it is driven in three calls, as its radio b
    :meth:`RobotAgent.beacon` is then its position beacon ``Message(id, t, position)``;
 2. :meth:`RobotAgent.token`: from the beacons its radio delivered, its observation ``[4, 32, 32]``
    (its own map's window, the neighbours within r_c of its own estimate, the border), its selection
-   view from its own maps (:func:`madp.robot.choice.map_views`, the ``explore`` prior
-   :func:`~madp.robot.choice.map_prior`) and its token message (:meth:`madp.robot.RobotRuntime.message`);
+   view from its own maps (:func:`madp.robot.choice.map_views`, with its rule's prior:
+   :meth:`madp.robot.RobotRuntime.view`) and its token message (:meth:`madp.robot.RobotRuntime.message`);
 3. :meth:`RobotAgent.act`: from the token messages its radio delivered, its selection view and the
    exported policy (:meth:`madp.robot.RobotRuntime.step`; starting noise :func:`robot_noise` of the
    swarm's seed, the step and the neighbourhood's ids) -> :class:`madp.robot.StepResult`.
@@ -30,7 +30,7 @@ from madp.sim.network import Message
 from madp.sim.params import SimParams
 from madp.sim.robot_maps import RobotMaps, SensorReading
 
-from .choice import MAP_RULES, LocalViews, map_prior, map_views
+from .choice import LocalViews, map_views
 from .inbox import read_inbox
 from .runtime import RobotRuntime, StepResult
 
@@ -94,7 +94,7 @@ class RobotAgent:
         known = within_reach(own, held[None], self.params.comm_radius_m)[0]
         p = self.params
         self.observation = self.maps.observations(own, p.comm_radius_m, p.obs_size, view=(known[None], held[None]))[0]
-        self.view = self._view(known, held) if self.runtime.rule in MAP_RULES else None
+        self.view = self._view(known, held) if self.runtime.reads_map else None
         self._message = self.runtime.message(self.robot_id, self.step, self.observation, self.position_m,
                                              held[known], self.seed)
         return self._message
@@ -124,7 +124,7 @@ class RobotAgent:
         if self.anchor_m is None or known.any():
             self.anchor_m = self.position_m.copy()
         view = map_views(self.maps, own, start, offset, known[None], held[None], anchor_m=self.anchor_m[None])
-        return map_prior(self.maps, view) if self.runtime.rule == "explore" else view
+        return self.runtime.view(self.maps, view)
 
     def _beacon_positions(self, beacons) -> np.ndarray:
         """``[M, 2]`` float64: the positions of the usable beacons (:func:`madp.robot.read_inbox`'s rules

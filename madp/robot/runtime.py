@@ -32,18 +32,21 @@ import numpy as np
 
 from madp.errors import InputError, SettingError
 from madp.io.jsonfile import read_json
-from .choice import LocalViews, local_cell_costs, lone_steps, medoid_index, mppi_weights
+from .choice import MAP_RULES, LocalViews, local_cell_costs, lone_steps, map_prior, medoid_index, mppi_weights
 from madp.sim.network import Message
 from madp.sim.params import SimParams
 from madp.sim.rules import clip_speed, closer_than_squared
 
 from .frame import frame_element, inverse_action, transform_observation, transform_points
 from .inbox import InboxCounts, read_inbox
+from .prior import value_view
 
 __all__ = ["FORMAT", "RobotRuntime", "StepResult", "check_own", "robot_noise"]
 
 FORMAT = "madp-onnx-runtime/1"
-RULES = ("none", "cell", "explore", "mppi", "medoid")
+RULES = ("none", "cell", "explore", "mppi", "medoid", "value", "value_explore")
+#: The rules that rank candidates on the export's map prior (its ``map_prior`` graph).
+PRIOR_RULES = ("value", "value_explore")
 GRAPHS = ("perception", "encoder", "denoiser")
 
 Noise = Callable[[np.ndarray], np.ndarray]
@@ -98,7 +101,7 @@ class RobotRuntime:
             raise InputError(f"{spec_file}: expected format {FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
         self.spec = spec
         try:  # a missing or bad field: one line naming the file, not a KeyError
-            graphs = {role: str(spec["graphs"][role]) for role in GRAPHS}
+            graphs = {role: str(spec["graphs"][role]) for role in (*GRAPHS, *(["map_prior"] if "map_prior" in spec["graphs"] else []))}
             m, sel = spec["model"], spec["selection"]
             self.token_dim, self.z_dim, self.action_dim = int(m["token_dim"]), int(m["z_dim"]), int(m["action_dim"])
             self.offset_token = m["pos_token"] == "neighbourhood_offset"
@@ -114,6 +117,9 @@ class RobotRuntime:
             raise InputError(f"{spec_file}: not a complete {FORMAT} file ({type(e).__name__}: {e})") from None
         if self.rule not in RULES:
             raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(RULES)})")
+        if self.rule in PRIOR_RULES and "map_prior" not in graphs:
+            raise InputError(f"{spec_file}: selection rule {self.rule} needs the map prior's graph, which the export "
+                             "does not name (export again from a policy file that carries one)")
         self.max_age = max_age
         self._check_graphs(spec_file, graphs)
         opts = ort.SessionOptions()
@@ -153,6 +159,27 @@ class RobotRuntime:
                                  "(an interrupted or mixed export); export again with madp export --overwrite")
 
     # ------------------------------------------------------------------------------------ helpers
+    @property
+    def reads_map(self) -> bool:
+        """Whether its rule reads the robot's map (the step needs the robot's view)."""
+        return self.rule in (*MAP_RULES, *PRIOR_RULES)
+
+    def predict_prior(self, windows: np.ndarray) -> np.ndarray:
+        """The map prior's graph: ``windows [R, 3, H, W]`` (:func:`madp.robot.prior.prior_inputs`) ->
+        each coarse cell's importance per m² ``[R, H, W]`` (float64)."""
+        x = np.ascontiguousarray(windows, np.float32)
+        return self.sessions["map_prior"].run(None, {"windows": x})[0].astype(np.float64)
+
+    def view(self, maps, view: LocalViews) -> LocalViews:
+        """A robot's view as its rule ranks on: ``view`` (from its own ``maps``, :func:`madp.robot.choice.map_views`)
+        with the ``explore`` prior, or the map prior's (``value``; ``value_explore``: at least ``explore``'s),
+        or as it is (``cell``, ``mppi``)."""
+        if self.rule == "explore":
+            return map_prior(maps, view)
+        if self.rule in PRIOR_RULES:
+            return value_view(maps, view, self.predict_prior, floor=self.rule == "value_explore")
+        return view
+
     def frame_of(self, seed: int, step: int) -> int:
         """The d4 element of ``step`` of the episode of ``seed`` (0 with ``frame="world"``)."""
         return frame_element(seed, step) if self.frame == "d4" else 0
@@ -215,9 +242,9 @@ class RobotRuntime:
         ``observation [4, S, S]`` and ``position_m [2]`` its own; ``inbox``: the :class:`Message`\\ s it
         received (this step's tokens of its neighbours; bad ones are dropped and counted, never
         raised); ``view``: its :class:`madp.policies.select.LocalViews` row (R = 1: its own position
-        as the motion rule integrates it, its sensed map's block sums with the ``explore`` prior), for
-        the rules that read its map (``cell``, ``explore``, ``mppi``; the neighbours are taken from
-        the inbox); ``noise(ids) -> [K, T, 2]``: the starting noise of the neighbourhood's robots
+        as the motion rule integrates it, its sensed map's block sums with its rule's prior: :meth:`view`),
+        for the rules that read its map (``cell``, ``explore``, ``mppi``, ``value``, ``value_explore``; the
+        neighbours are taken from the inbox); ``noise(ids) -> [K, T, 2]``: the starting noise of the neighbourhood's robots
         (default :func:`robot_noise`); ``own``: its message of this step when already computed by
         :meth:`message` (else computed here from the inbox's positions)."""
         check_own(observation, position_m)

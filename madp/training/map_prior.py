@@ -202,13 +202,13 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
                   "held_out_mse": score(torch.cat([net(c) for c in xv.split(4096)]), yv, wv),
                   "explore_mean_mse": score(_mean_prior(xv), yv, wv),
                   "zero_mse": score(torch.zeros_like(yv), yv, wv)}
-    _write_policy(Path(policy), out, net, {"data": str(data), "data_sha256": sha256_file(data), "collect": meta,
+    add_prior(Path(policy), out, net, {"data": str(data), "data_sha256": sha256_file(data), "collect": meta,
                                             "epochs": epochs, "seed": seed, **{k: v for k, v in scores.items()
                                                                                if k != "train_loss"}})
     return scores
 
 
-def _write_policy(policy: Path, out: Path, net: MapPrior, record: dict) -> None:
+def add_prior(policy: Path, out: Path, net: MapPrior, record: dict) -> None:
     """``policy``'s tensors and metadata with ``net`` added, written to ``out`` under a temporary name."""
     with safe_open(str(policy), framework="pt") as f:
         metadata = dict(f.metadata() or {})

@@ -120,3 +120,33 @@ def test_robot_runtime_bench_runs_the_evaluation_default():
     assert (r["candidates"], r["num_steps"], r["select"], r["frame"]) == (d.candidates, d.sampling_steps, d.select, d.frame)
     assert r["onnxruntime_per_robot_s"] > 0 and r["torch_swarm_s"] > 0
     assert f"among K = {d.candidates}," in format_robot_runtime(r)[0]
+
+
+def test_a_value_rule_exports_the_policy_files_map_prior(tmp_path):
+    """``--select value``: the export holds the map prior's graph (against PyTorch, 1e-5, on windows of
+    any side), runtime.json names it with its sha256; ``value_joint`` and a file without a prior are
+    refused in one line."""
+    from madp.export.onnx import PRIOR_GRAPH, export_policy
+    from madp.models.map_prior import MapPrior
+    from madp.policies import SamplingSettings
+    from madp.training.map_prior import add_prior
+    from tests.test_cli import madp
+
+    torch.manual_seed(0)
+    net = MapPrior().eval()
+    policy = tmp_path / "policy.safetensors"
+    add_prior(shipped_checkpoint("madp"), policy, net, {})
+    spec = export_policy(policy, tmp_path / "value", SamplingSettings.of(select="value"))
+    assert spec["graphs"]["map_prior"] == PRIOR_GRAPH["map_prior"] and set(spec["graph_sha256"]) == {*GRAPHS, "map_prior"}
+    sess = ort.InferenceSession(str(tmp_path / "value" / PRIOR_GRAPH["map_prior"]), providers=["CPUExecutionProvider"])
+    for side in (16, 9):
+        x = torch.rand(5, 3, side, side, generator=torch.Generator().manual_seed(side))
+        with torch.no_grad():
+            ref = net(x).numpy()
+        assert np.abs(sess.run(None, {"windows": x.numpy()})[0] - ref).max() <= 1e-5
+    plain = export_policy(shipped_checkpoint("madp"), tmp_path / "explore")
+    assert "map_prior" not in plain["graphs"] and not (tmp_path / "explore" / PRIOR_GRAPH["map_prior"]).exists()
+    r = madp("export", str(policy), "--out", str(tmp_path / "j"), "--select", "value_joint")
+    assert r.returncode == 2 and "value_joint" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = madp("export", str(shipped_checkpoint("madp")), "--out", str(tmp_path / "v"), "--select", "value")
+    assert r.returncode == 2 and "carries no map prior" in r.stderr and len(r.stderr.strip().splitlines()) == 1
