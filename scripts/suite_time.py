@@ -7,9 +7,11 @@ on one torch thread as an evaluation worker runs, and times it in process CPU ti
 on the machine do not inflate it). A group's CPU time is that per-environment cost times the
 group's number of environments; the wall time on W workers is the total over W (the pool keeps
 every worker busy until its last few tasks). A sample, not the run: environments of a group differ,
-and a batch of --batch amortises less than `madp eval`'s batches of 8.
+a batch of --batch amortises less than `madp eval`'s batches of 8, and with --steps below the
+evaluation's --eval-steps a rollout's time is scaled up by their ratio. With --cities K only the
+first K cities are timed, each standing for 40 / K.
 
-    python scripts/suite_time.py --batch 2 --out runs/suite_time.json
+    python scripts/suite_time.py --batch 2 --steps 200 --cities 4 --out runs/suite_time.json
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ from madp.eval.suites import SUITES, suite_envs
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--num-envs", type=int, default=50, help="environments per group of the evaluation timed")
-    ap.add_argument("--steps", type=int, default=600)
+    ap.add_argument("--steps", type=int, default=600, help="control steps timed per rollout")
+    ap.add_argument("--eval-steps", type=int, default=600, help="control steps of the evaluation estimated")
+    ap.add_argument("--cities", type=int, default=0, help="time only the first K cities (0: all)")
     ap.add_argument("--batch", type=int, default=2, help="environments of a learned controller's timed batch")
     ap.add_argument("--workers", type=int, default=2, help="evaluation workers the wall time is given for")
     ap.add_argument("--suites", default=",".join(SUITES))
@@ -46,15 +50,19 @@ def main() -> None:
             groups = defaultdict(list)
             for e in envs:
                 groups[e.group].append(e)
-            for group, specs in groups.items():
+            timed = list(groups.items())
+            if suite == "cities" and args.cities:
+                timed = timed[:args.cities]
+            stands_for = len(groups) / len(timed)  # groups each timed one stands for
+            for group, specs in timed:
                 for c in controllers:
                     sample = specs[:1] if c in CLASSICAL else specs[:args.batch]
                     t0 = time.process_time()
                     run_task(cfg, c, sample, Path(tmp) / suite, False)
-                    per_env_s = (time.process_time() - t0) / len(sample)
+                    per_env_s = (time.process_time() - t0) / len(sample) * args.eval_steps / args.steps
                     rows.append({"suite": suite, "group": group, "controller": c, "envs": len(specs),
                                  "robots": sample[0].params.num_robots, "cpu_s_per_env": per_env_s,
-                                 "cpu_s": per_env_s * len(specs)})
+                                 "cpu_s": per_env_s * len(specs) * stands_for})
                     print(f"{suite:8s} {group:28s} {c:12s} {per_env_s:7.1f} s/env  x {len(specs)}", flush=True)
     total = sum(r["cpu_s"] for r in rows)
     by = defaultdict(float)
