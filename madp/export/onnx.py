@@ -48,7 +48,7 @@ OPSET = 17
 GRAPHS = {"perception": "perception.onnx", "encoder": "encoder.onnx", "denoiser": "denoiser.onnx"}
 #: The map prior's graph (``value`` and ``value_explore`` only), by role, and its file name.
 PRIOR_GRAPH = {"map_prior": "map_prior.onnx"}
-#: The rules with a map prior that the robot runtime runs (``value_joint`` also needs its neighbours'
+#: The rules with a map prior that the robot runtime runs (the ``_joint`` ones also need their neighbours'
 #: costs in a round of messages the runtime's protocol does not have).
 EXPORTED_VALUE_RULES = ("value", "value_explore")
 RUNTIME_JSON = "runtime.json"
@@ -182,7 +182,7 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
 
     One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
     settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
-    ``oracle`` rules that read the world, ``value_joint``), and for a ``value`` rule with a policy file
+    ``oracle`` rules that read the world, the ``_joint`` value rules), and for a ``value`` rule with a policy file
     that carries no map prior. With ``value`` or ``value_explore`` the prior is exported too."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
@@ -194,7 +194,7 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
     if sampling.select in VALUE_RULES and sampling.select not in EXPORTED_VALUE_RULES:
         raise SettingError("select", f"{sampling.select} sums each neighbour's costs of its candidates, a round of messages "
                                      "the robot runtime's protocol does not have; it runs none, cell, mppi, medoid, explore, "
-                                     "value and value_explore (evaluate value_joint with --runtime torch)")
+                                     "value and value_explore (evaluate it with --runtime torch)")
     policy = Path(policy)
     model, meta = load_policy(policy)
     prior = load_map_prior(policy) if sampling.select in EXPORTED_VALUE_RULES else None

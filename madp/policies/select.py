@@ -37,6 +37,7 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   more round of messages, modelled as delivered wherever the position was) and
   keeps its action of the copy of least sum. Robots whose neighbourhoods agree keep actions of one
   joint sample, not each its own best of K different ones.
+* ``value_explore_joint``: ``value_joint`` on ``value_explore``'s map (``explore``'s mean as a floor).
 * ``oracle_joint`` — **an upper bound for** ``value_joint``, **not a controller robots could run**:
   ``value_joint`` with the true world map in each robot's window (a perfect map prior): what a
   one-step choice of one copy per neighbourhood can reach.
@@ -44,7 +45,7 @@ action). The rules (:data:`SELECTS`, ``SamplingSettings(select=..., candidates=K
   :func:`medoid_index`): the most typical of its samples, a mode estimate, from its own candidates only.
 
 A robot that holds no neighbour (out of range, or every message lost) does not choose among its
-samples under the rules that read its map (``cell``, ``explore``, ``value``, ``value_explore``, ``value_joint``,
+samples under the rules that read its map (``cell``, ``explore``, the ``value`` rules,
 ``mppi``, ``oracle_cell``, ``oracle_joint``): it takes the Lloyd step of the disc it would expect to cover around where it last
 heard a neighbour (:func:`madp.robot.choice.lone_steps`).
 
@@ -75,11 +76,11 @@ from madp.sim.voronoi import coverage_cost
 
 #: The selection rules (module docstring).
 SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell", "value", "value_explore", "value_joint",
-           "oracle_joint")
+           "value_explore_joint", "oracle_joint")
 #: The rules that read the world map: upper bounds, not controllers robots could run.
 ORACLE_RULES = ("oracle", "oracle_cell", "oracle_joint")
 #: The rules that rank candidates on a policy file's learned map prior (madp value train).
-VALUE_RULES = ("value", "value_explore", "value_joint")
+VALUE_RULES = ("value", "value_explore", "value_joint", "value_explore_joint")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
@@ -143,9 +144,9 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
         if map_prior is None:
             raise SettingError("select", f"{select} scores candidates on a learned map prior: expected a policy file "
                                          "that carries one (madp value train)")
-        views = value_views(env, views, map_prior, floor=select == "value_explore")
+        views = value_views(env, views, map_prior, floor=select in ("value_explore", "value_explore_joint"))
     costs = local_cell_costs(views, per_robot, env.params)
-    if select in ("value_joint", "oracle_joint"):
+    if select in ("value_joint", "value_explore_joint", "oracle_joint"):
         chosen = np.take_along_axis(per_robot, joint_copy(costs, env.neighbour_view()[0])[:, None, None], 1)[:, 0]
     elif select in ("cell", "explore", "oracle_cell", "value", "value_explore"):
         chosen = np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]

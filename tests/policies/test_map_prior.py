@@ -108,3 +108,25 @@ def test_bad_examples_files_are_one_line_errors(trained, tmp_path):
     assert code == 2 and "none.npz: not found" in err and "Traceback" not in err
     code, err = cli("value", "train", "--data", d / "ex.npz", "--out", d / "policy.safetensors")
     assert code == 2 and "exists" in err
+
+
+def test_value_explore_joint_is_the_joint_choice_on_value_explores_map():
+    """``value_explore_joint`` keeps, per robot, its action of the copy whose costs on ``value_explore``'s
+    map (the prior with ``explore``'s floor), summed over the neighbours it holds, are least. With a
+    prior that predicts nothing the floor is all there is, and it changes what robots keep."""
+    from madp.policies.select import local_cell_costs, local_views, select_actions, value_views
+    from madp.robot.choice import lone_steps
+
+    prior = MapPrior().eval()
+    with torch.no_grad():
+        prior.head.bias.fill_(-30.0)  # softplus: about 1e-13 per m² everywhere
+    env = CoverageEnv(Scenario.random(5, SimParams(num_robots=12, num_features=8), launch=(300.0, 300.0, 500.0, 500.0)))
+    cands = np.random.default_rng(0).uniform(-3.0, 3.0, (6, 12, 2))
+    per_robot = cands.transpose(1, 0, 2)
+    views = value_views(env, local_views(env), prior, floor=True)
+    costs = local_cell_costs(views, per_robot, env.params)
+    lone, steps = lone_steps(views, env.params)
+    pick = joint_copy(costs, env.neighbour_view()[0])
+    want = np.where(lone[:, None], steps, np.take_along_axis(per_robot, pick[:, None, None], 1)[:, 0])
+    np.testing.assert_array_equal(select_actions("value_explore_joint", env, cands, prior), want)
+    assert not np.array_equal(want, select_actions("value_joint", env, cands, prior))  # the floor changes a choice

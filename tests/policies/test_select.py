@@ -317,10 +317,10 @@ def test_oracle_joint_is_the_joint_choice_on_the_true_map():
     (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--select", "none", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, oracle_joint), got select none"),
+                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, value_explore_joint, oracle_joint), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
                                                         "mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, "
-                                                        "oracle_joint, got 'vote'"),
+                                                        "value_explore_joint, oracle_joint, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     """(A rule named alone takes its default K: ``SamplingSettings.of``, tested below.)"""
