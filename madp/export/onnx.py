@@ -36,9 +36,10 @@ from madp.io.owned import foreign_files
 from madp.policies.checkpoint import load_map_prior, load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
 from madp.policies.select import GRID_M, ORACLE_RULES, VALUE_RULES
+from madp.robot.runtime import PRIOR_RULES
 from madp.sim import SimParams
 
-__all__ = ["EXPORTED_VALUE_RULES", "FORMAT", "GRAPHS", "OPSET", "PRIOR_GRAPH", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
+__all__ = ["FORMAT", "GRAPHS", "OPSET", "PRIOR_GRAPH", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
 
 #: ``runtime.json``'s ``format``: the layout the runtime reads.
 FORMAT = "madp-onnx-runtime/1"
@@ -48,9 +49,8 @@ OPSET = 17
 GRAPHS = {"perception": "perception.onnx", "encoder": "encoder.onnx", "denoiser": "denoiser.onnx"}
 #: The map prior's graph (``value`` and ``value_explore`` only), by role, and its file name.
 PRIOR_GRAPH = {"map_prior": "map_prior.onnx"}
-#: The rules with a map prior that the robot runtime runs (the ``_joint`` ones also need their neighbours'
-#: costs in a round of messages the runtime's protocol does not have).
-EXPORTED_VALUE_RULES = ("value", "value_explore")
+# The value rules the robot runtime runs are its PRIOR_RULES; the ``_joint`` ones also need their
+# neighbours' costs in a round of messages the runtime's protocol does not have.
 RUNTIME_JSON = "runtime.json"
 
 
@@ -191,14 +191,14 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
     if sampling.select in ORACLE_RULES:
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
-    if sampling.select in VALUE_RULES and sampling.select not in EXPORTED_VALUE_RULES:
+    if sampling.select in VALUE_RULES and sampling.select not in PRIOR_RULES:
         raise SettingError("select", f"{sampling.select} sums each neighbour's costs of its candidates, a round of messages "
                                      "the robot runtime's protocol does not have; it runs none, cell, mppi, medoid, explore, "
                                      "value and value_explore (evaluate it with --runtime torch)")
     policy = Path(policy)
     model, meta = load_policy(policy)
-    prior = load_map_prior(policy) if sampling.select in EXPORTED_VALUE_RULES else None
-    if sampling.select in EXPORTED_VALUE_RULES and prior is None:
+    prior = load_map_prior(policy) if sampling.select in PRIOR_RULES else None
+    if sampling.select in PRIOR_RULES and prior is None:
         raise InputError(f"{policy}: carries no map prior, which {sampling.select} ranks candidates on "
                          "(madp value train adds one)")
     if meta["kind"] != "madp":
