@@ -260,7 +260,6 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         out["selection"] = bench_select(candidates, checkpoint, repeats, threads, device)
     if robot:
         from madp.export.bench import bench_robot_runtime
-
         from madp.policies.checkpoint import load_map_prior
 
         out["robot_runtime"] = bench_robot_runtime(checkpoint, repeats=repeats)

@@ -33,9 +33,9 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     from madp.models.bench import _threads
     from madp.policies import MADPPolicy, SamplingSettings, load, noise_generator, shipped_checkpoint
     from madp.policies.checkpoint import load_map_prior
-    from madp.robot.choice import GRID_M, local_views, unexplored_blocks
+    from madp.robot.choice import local_views
     from madp.robot import RobotRuntime
-    from madp.robot.prior import prior_inputs, window_masks
+    from madp.robot.prior import window_inputs
     from madp.robot.runtime import PRIOR_RULES
     from madp.sim import CoverageEnv, Scenario, SimParams
 
@@ -51,10 +51,8 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
         base = local_views(env)
         views = rt.view(env.maps, base)
         rows = [views.row(i) for i in range(num_robots)]
-        windows = None  # the map prior's input per robot (value rules): its graph runs inside the timing
-        if rt.rule in PRIOR_RULES:
-            inside = window_masks(base.origin_m, base.weights.shape[1], GRID_M, env.params.world_size)
-            windows = prior_inputs(base.weights, unexplored_blocks(env.maps, base), inside, GRID_M)
+        # the map prior's input per robot (value rules): its graph runs inside the timing
+        windows = window_inputs(env.maps, base)[0] if rt.rule in PRIOR_RULES else None
         sent = [rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed) for i in range(num_robots)]
         inboxes = [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(num_robots)]
 

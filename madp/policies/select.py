@@ -62,14 +62,11 @@ is re-exported here.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
-import numba
 import numpy as np
 
 from madp.errors import SettingError
 from madp.robot.choice import (GRID_M, MPPI_TEMPERATURE, LocalViews, explore_prior, local_cell_costs, local_views,
-                               joint_copy, lone_steps, medoid_index, mppi_weights, unexplored_blocks)
+                               joint_copy, lone_steps, medoid_index, mppi_weights)
 from madp.robot.prior import value_view
 from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost
@@ -81,6 +78,8 @@ SELECTS = ("none", "oracle", "cell", "mppi", "medoid", "explore", "oracle_cell",
 ORACLE_RULES = ("oracle", "oracle_cell", "oracle_joint")
 #: The rules that rank candidates on a policy file's learned map prior (madp value train).
 VALUE_RULES = ("value", "value_explore", "value_joint", "value_explore_joint")
+#: The rules that keep one copy per neighbourhood (:func:`madp.robot.choice.joint_copy`).
+JOINT_RULES = ("value_joint", "value_explore_joint", "oracle_joint")
 #: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
@@ -137,7 +136,7 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if select == "medoid":
         return np.take_along_axis(per_robot, medoid_index(per_robot)[:, None, None], 1)[:, 0]
-    views = local_views(env, true_map=select in ("oracle_cell", "oracle_joint"))
+    views = local_views(env, true_map=select in ORACLE_RULES)
     if select == "explore":
         views = explore_prior(env, views)
     if select in VALUE_RULES:
@@ -146,7 +145,7 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
                                          "that carries one (madp value train)")
         views = value_views(env, views, map_prior, floor=select in ("value_explore", "value_explore_joint"))
     costs = local_cell_costs(views, per_robot, env.params)
-    if select in ("value_joint", "value_explore_joint", "oracle_joint"):
+    if select in JOINT_RULES:
         chosen = np.take_along_axis(per_robot, joint_copy(costs, env.neighbour_view()[0])[:, None, None], 1)[:, 0]
     elif select in ("cell", "explore", "oracle_cell", "value", "value_explore"):
         chosen = np.take_along_axis(per_robot, costs.argmin(1)[:, None, None], 1)[:, 0]

@@ -23,7 +23,8 @@ from .choice import GRID_M, LocalViews, map_prior, unexplored_blocks
 if TYPE_CHECKING:
     from madp.sim.robot_maps import RobotMaps
 
-__all__ = ["COARSE_M", "PRIOR_CHANNELS", "coarse_sum", "fill_prior", "prior_inputs", "value_view", "window_masks"]
+__all__ = ["COARSE_M", "PRIOR_CHANNELS", "coarse_sum", "fill_prior", "prior_inputs", "value_view", "window_inputs",
+           "window_masks"]
 
 #: Side (m) of the coarse cells the prior predicts: 4 × 4 of the selection rules' 4 m blocks.
 COARSE_M = 16
@@ -74,15 +75,22 @@ def fill_prior(weights: np.ndarray, unexplored: np.ndarray, inside: np.ndarray, 
     return weights + (fill if floor is None else np.maximum(fill, floor))
 
 
+def window_inputs(maps: RobotMaps, views: LocalViews) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the prior reads of each robot's window (rows of the robots of ``maps``): its input
+    ``[R, 3, H, W]`` (:func:`prior_inputs`), the window's unexplored blocks and its blocks inside the
+    world (both ``[R, G, G]`` bool)."""
+    inside = window_masks(views.origin_m, views.weights.shape[1], GRID_M, maps.world_size)
+    unexplored = unexplored_blocks(maps, views)
+    return prior_inputs(views.weights, unexplored, inside, GRID_M), unexplored, inside
+
+
 def value_view(maps: RobotMaps, views: LocalViews, predict: Predict, floor: bool = False) -> LocalViews:
     """``views`` (rows of the robots of ``maps``) with the ``value`` rule's weights: each robot's
     unexplored blocks inside the world given ``predict``'s importance (:func:`fill_prior`);
     ``floor``: at least ``explore``'s mean (``value_explore``). ``sensed`` keeps the weights before."""
     if len(views.weights) == 0:
         return replace(views, sensed=views.weights)
-    inside = window_masks(views.origin_m, views.weights.shape[1], GRID_M, maps.world_size)
-    unexplored = unexplored_blocks(maps, views)
+    x, unexplored, inside = window_inputs(maps, views)
     mean = map_prior(maps, views).weights - views.weights if floor else None  # explore's mass on unexplored blocks
-    density = predict(prior_inputs(views.weights, unexplored, inside, GRID_M))
-    return replace(views, weights=fill_prior(views.weights, unexplored, inside, GRID_M, density, mean),
+    return replace(views, weights=fill_prior(views.weights, unexplored, inside, GRID_M, predict(x), mean),
                    sensed=views.weights)

@@ -101,7 +101,8 @@ class RobotRuntime:
             raise InputError(f"{spec_file}: expected format {FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
         self.spec = spec
         try:  # a missing or bad field: one line naming the file, not a KeyError
-            graphs = {role: str(spec["graphs"][role]) for role in (*GRAPHS, *(["map_prior"] if "map_prior" in spec["graphs"] else []))}
+            roles = (*GRAPHS, "map_prior") if "map_prior" in spec["graphs"] else GRAPHS  # the prior: value rules only
+            graphs = {role: str(spec["graphs"][role]) for role in roles}
             m, sel = spec["model"], spec["selection"]
             self.token_dim, self.z_dim, self.action_dim = int(m["token_dim"]), int(m["z_dim"]), int(m["action_dim"])
             self.offset_token = m["pos_token"] == "neighbourhood_offset"

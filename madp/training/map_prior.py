@@ -3,7 +3,7 @@
 * :func:`collect` (``madp value collect``): the deployed policy (MADP at the evaluation default, the
   ``explore`` rule) drives swarms on dataset scenarios (seeds below 2⁶², never an evaluation suite's;
   uniform and packed launches in turn). Every ``every`` steps each robot's window gives one example:
-  the prior's input (:func:`madp.models.map_prior.prior_inputs`, from the robot's own map) and its
+  the prior's input (:func:`madp.robot.prior.prior_inputs`, from the robot's own map) and its
   target, the true importance of the same window (:func:`madp.models.map_prior.prior_targets`). One
   ``.npz`` file, written under a temporary name and renamed, with the settings that made it.
 * :func:`train` (``madp value train``): the prior fitted to those examples (the squared error per
@@ -30,9 +30,10 @@ from madp.data_schema.manifest import sha256_file
 from madp.datagen.plan import scenario_seed
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path
-from madp.models.map_prior import MapPrior, MapPriorConfig, prior_inputs, prior_targets, window_masks
+from madp.models.map_prior import MapPrior, MapPriorConfig, prior_targets
 from madp.models.symmetry import transform_image
-from madp.robot.choice import GRID_M, local_views, unexplored_blocks
+from madp.robot.choice import GRID_M, local_views
+from madp.robot.prior import window_inputs
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.launch import TRAINING_LAUNCHES, draw_launch
 from madp.sim.rollout import Hook, run
@@ -46,11 +47,7 @@ FORMAT = 1
 def window_examples(env: CoverageEnv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every robot's example at the current step: inputs ``[N, 3, 16, 16]``, targets ``[N, 16, 16]``
     and loss weights ``[N, 16, 16]`` (the fraction of each coarse cell inside the world and unexplored)."""
-    views = local_views(env)
-    g = views.weights.shape[1]
-    inside = window_masks(views.origin_m, g, GRID_M, env.params.world_size)
-    unexplored = unexplored_blocks(env.maps, views)
-    x = prior_inputs(views.weights, unexplored, inside, GRID_M)
+    x, _, inside = window_inputs(env.maps, local_views(env))
     y = prior_targets(local_views(env, true_map=True).weights, inside, GRID_M)
     return x, y, np.clip(x[:, 2] - x[:, 1], 0.0, 1.0)
 
@@ -203,8 +200,8 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
                   "explore_mean_mse": score(_mean_prior(xv), yv, wv),
                   "zero_mse": score(torch.zeros_like(yv), yv, wv)}
     add_prior(Path(policy), out, net, {"data": str(data), "data_sha256": sha256_file(data), "collect": meta,
-                                            "epochs": epochs, "seed": seed, **{k: v for k, v in scores.items()
-                                                                               if k != "train_loss"}})
+                                       "epochs": epochs, "seed": seed, **{k: v for k, v in scores.items()
+                                                                          if k != "train_loss"}})
     return scores
 
 
