@@ -36,6 +36,8 @@ def value_train_cmd(
     policy: Optional[Path] = typer.Option(None, help="MADP policy file to add the prior to (default: the shipped one)."),
     epochs: int = typer.Option(8, min=1, help="Passes over the examples."),
     seed: int = typer.Option(0, min=0, help="Seed of the initial weights and the batches."),
+    expectile: float = typer.Option(0.5, help="Expectile τ in (0, 1) the prior predicts: 0.5 the expected importance, "
+                                    "more an optimistic one where the unexplored is uncertain."),
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Fit the map prior (the last tenth of the rollouts held out) and write the policy file that carries it."""
@@ -43,6 +45,7 @@ def value_train_cmd(
     from madp.training.map_prior import train
 
     source = Path(resolve_checkpoint("madp", str(policy) if policy else None))
-    s = train(data, source, out, epochs=epochs, seed=seed, overwrite=overwrite)
-    typer.echo(f"held-out squared error per m² of unexplored window: {s['held_out_mse']:.4f} (explore's mean: "
-               f"{s['explore_mean_mse']:.4f}, zero: {s['zero_mse']:.4f}) -> {out}")
+    s = train(data, source, out, epochs=epochs, seed=seed, expectile=expectile, overwrite=overwrite)
+    typer.echo(f"held-out squared error per m² of unexplored window: {s['held_out_mse']:.4f}, mean signed error "
+               f"{s['held_out_bias']:+.4f} (explore's mean: {s['explore_mean_mse']:.4f}, {s['explore_mean_bias']:+.4f}; "
+               f"zero: {s['zero_mse']:.4f}) -> {out}")

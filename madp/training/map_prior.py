@@ -8,7 +8,11 @@
   ``.npz`` file, written under a temporary name and renamed, with the settings that made it.
 * :func:`train` (``madp value train``): the prior fitted to those examples (the squared error per
   coarse cell, weighted by the part of the cell inside the world the robot has not explored, with
-  the world's 8 symmetries as augmentation), the environments' last tenth held out. The explore
+  the world's 8 symmetries as augmentation), the environments' last tenth held out. With an
+  ``expectile`` τ above 0.5 the squared error of a prediction below the truth counts τ, above it
+  1 − τ (expectile regression): the prior then predicts more than the expected importance where the
+  unexplored is uncertain, and about the same where it is not, an optimism that sends robots to look.
+  τ = 0.5 is the plain squared error. The explore
   rule's own prior, the explored blocks' mean, is scored on the same held-out cells. The result is a
   copy of the policy file with the prior added (weights under ``map_prior.``, config under the
   metadata key ``map_prior``), so one file carries both.
@@ -38,7 +42,7 @@ from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.launch import TRAINING_LAUNCHES, draw_launch
 from madp.sim.rollout import Hook, run
 
-__all__ = ["collect", "train", "window_examples"]
+__all__ = ["collect", "expectile_loss", "explore_mean", "train", "window_examples"]
 
 #: Format version of the examples file.
 FORMAT = 1
@@ -132,7 +136,7 @@ def _load(path: Path) -> tuple[dict, dict]:
     return data, meta
 
 
-def _mean_prior(x: torch.Tensor) -> torch.Tensor:
+def explore_mean(x: torch.Tensor) -> torch.Tensor:
     """The explore rule's prediction for every cell: the explored part's mean importance per m²
     over the whole window (1 mass unit per block where nothing explored holds any)."""
     known = x[:, 1] * 16.0
@@ -142,11 +146,22 @@ def _mean_prior(x: torch.Tensor) -> torch.Tensor:
     return mean[:, None, None].expand_as(x[:, 0])
 
 
+def expectile_loss(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor, expectile: float) -> torch.Tensor:
+    """The weighted mean of the squared errors, those of predictions below the target counted
+    ``2 τ``, those above ``2 (1 − τ)`` (τ = 0.5: the weighted mean squared error itself)."""
+    err = pred - target
+    side = torch.where(err < 0, 2.0 * expectile, 2.0 * (1.0 - expectile)) if expectile != 0.5 else 1.0
+    return (side * err ** 2 * weight).sum() / weight.sum().clamp(min=1e-9)
+
+
 def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256, lr: float = 2e-3, seed: int = 0,
-          config: MapPriorConfig | None = None, overwrite: bool = False, progress: bool = True) -> dict:
+          config: MapPriorConfig | None = None, expectile: float = 0.5, overwrite: bool = False,
+          progress: bool = True) -> dict:
     """Fit the map prior to the examples in ``data``, and write ``policy`` with it added to ``out``.
-    Returns the held-out scores."""
+    Returns the held-out scores (squared error and mean signed error per m² of unexplored window)."""
     out = Path(out)
+    if isinstance(expectile, bool) or not isinstance(expectile, (int, float)) or not 0.0 < expectile < 1.0:
+        raise SettingError("expectile", f"expected a number strictly between 0 and 1, got {expectile!r}")
     if out.exists() and not overwrite:
         raise SettingError("out", f"{out} exists; pass --overwrite to replace it")
     if out.resolve() == Path(policy).resolve():
@@ -171,6 +186,9 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
     def score(pred, yy, ww):
         return float(((pred - yy) ** 2 * ww).sum() / ww.sum().clamp(min=1e-9))
 
+    def bias(pred, yy, ww):
+        return float(((pred - yy) * ww).sum() / ww.sum().clamp(min=1e-9))
+
     from rich.progress import Progress
 
     history = []
@@ -184,7 +202,7 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
                 j = perm[i * batch:(i + 1) * batch]
                 k = int(torch.randint(8, (1,), generator=g))
                 xb, yb, wb = transform_image(xt[j], k), transform_image(yt[j], k), transform_image(wt[j], k)
-                loss = ((net(xb) - yb) ** 2 * wb).sum() / wb.sum().clamp(min=1e-9)
+                loss = expectile_loss(net(xb), yb, wb, expectile)
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -195,13 +213,14 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
     net.eval()
     with torch.no_grad():
         xv, yv, wv = (x[va], y[va], w[va]) if bool(va.any()) else (xt, yt, wt)
+        pred, mean = torch.cat([net(c) for c in xv.split(4096)]), explore_mean(xv)
         scores = {"held_out_examples": int(len(xv)), "train_loss": history,
-                  "held_out_mse": score(torch.cat([net(c) for c in xv.split(4096)]), yv, wv),
-                  "explore_mean_mse": score(_mean_prior(xv), yv, wv),
+                  "held_out_mse": score(pred, yv, wv), "held_out_bias": bias(pred, yv, wv),
+                  "explore_mean_mse": score(mean, yv, wv), "explore_mean_bias": bias(mean, yv, wv),
                   "zero_mse": score(torch.zeros_like(yv), yv, wv)}
-    add_prior(Path(policy), out, net, {"data": str(data), "data_sha256": sha256_file(data), "collect": meta,
-                                       "epochs": epochs, "seed": seed, **{k: v for k, v in scores.items()
-                                                                          if k != "train_loss"}})
+    record = {"data": str(data), "data_sha256": sha256_file(data), "collect": meta, "epochs": epochs, "seed": seed,
+              "expectile": expectile, **{k: v for k, v in scores.items() if k != "train_loss"}}
+    add_prior(Path(policy), out, net, record)
     return scores
 
 

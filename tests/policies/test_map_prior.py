@@ -16,7 +16,7 @@ from madp.policies import SamplingSettings
 from madp.policies.checkpoint import load_map_prior, load_policy
 from madp.robot.choice import joint_copy
 from madp.sim import CoverageEnv, Scenario, SimParams
-from madp.training.map_prior import collect, train
+from madp.training.map_prior import collect, expectile_loss, train
 from tests.test_reliability_errors import cli
 
 SHIPPED = Path(__file__).resolve().parents[2] / "madp" / "checkpoints" / "madp-cpu.safetensors"
@@ -130,3 +130,24 @@ def test_value_explore_joint_is_the_joint_choice_on_value_explores_map():
     want = np.where(lone[:, None], steps, np.take_along_axis(per_robot, pick[:, None, None], 1)[:, 0])
     np.testing.assert_array_equal(select_actions("value_explore_joint", env, cands, prior), want)
     assert not np.array_equal(want, select_actions("value_joint", env, cands, prior))  # the floor changes a choice
+
+
+def test_expectile_loss_is_the_squared_error_at_one_half_and_optimistic_above():
+    g = torch.Generator().manual_seed(0)
+    y, w = torch.rand(64, 4, 4, generator=g), torch.rand(64, 4, 4, generator=g)
+    pred = torch.rand(64, 4, 4, generator=g)
+    assert torch.equal(expectile_loss(pred, y, w, 0.5), ((pred - y) ** 2 * w).sum() / w.sum())
+    # the constant that minimises it: the weighted mean at 0.5, above the mean for τ > 0.5
+    c = torch.linspace(0.0, 1.0, 1001)
+    best = {tau: float(c[torch.stack([expectile_loss(torch.full_like(y, v), y, w, tau) for v in c]).argmin()])
+            for tau in (0.5, 0.8)}
+    mean = float((y * w).sum() / w.sum())
+    assert abs(best[0.5] - mean) < 1e-3 and best[0.8] > mean + 0.05
+
+
+def test_train_refuses_an_expectile_outside_the_open_unit_interval(trained, tmp_path):
+    d, _, _ = trained
+    with pytest.raises(SettingError, match="expectile"):
+        train(d / "ex.npz", SHIPPED, tmp_path / "p.safetensors", expectile=1.0, progress=False)
+    code, err = cli("value", "train", "--data", d / "ex.npz", "--out", tmp_path / "p.safetensors", "--expectile", "0")
+    assert code == 2 and "expectile" in err and "Traceback" not in err
