@@ -5,10 +5,11 @@ the `launch` suite's rectangles (uniform, square, line) on *dataset* scenario se
 evaluation suite's), for --steps steps. Every 20 steps each robot's window is an example, as
 `madp value collect` takes them. Per layout and step range it prints, over the unexplored part of
 the windows inside the world (per m²): the squared error and the mean signed error (positive: the
-prediction is above the truth) of the map prior that --policy carries and of `explore`'s mean, and
-the true mean importance.
+prediction is above the truth) of `explore`'s mean and of the map prior each --policy carries, on the
+same windows, and the true mean importance.
 
-    python scripts/prior_bias.py --policy docs/results/value-k16-2026-12-05/policy.safetensors --envs 8
+    python scripts/prior_bias.py --envs 8 --policy docs/results/value-k16-2026-12-05/policy.safetensors \
+        --policy runs/value/expectile.safetensors
 """
 
 from __future__ import annotations
@@ -45,19 +46,21 @@ class _Windows(Hook):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--policy", required=True, help="a policy file that carries a map prior (madp value train)")
+    ap.add_argument("--policy", required=True, action="append",
+                    help="a policy file that carries a map prior (madp value train); repeat for several")
     ap.add_argument("--envs", type=int, default=8, help="rollouts per layout")
     ap.add_argument("--steps", type=int, default=200, help="steps per rollout")
     ap.add_argument("--layouts", default="uniform,square,line", help="launch layouts, comma-separated")
     ap.add_argument("--seed", type=int, default=7, help="dataset seed of the scenarios")
     args = ap.parse_args()
-    prior = load_map_prior(args.policy)
-    if prior is None:
-        raise SystemExit(f"{args.policy}: carries no map prior; make one with madp value train")
+    priors = {}
+    for path in args.policy:
+        priors[path] = load_map_prior(path)
+        if priors[path] is None:
+            raise SystemExit(f"{path}: carries no map prior; make one with madp value train")
     params = SimParams()
     ctrl = make_controller("madp", None, sampling=SamplingSettings.of())
-    print("| layout | steps | prior: squared error | prior: signed error | explore: squared error "
-          "| explore: signed error | true mean |\n|---|---|--:|--:|--:|--:|--:|")
+    print("| layout | steps | true mean | prediction | squared error | signed error |\n|---|---|--:|---|--:|--:|")
     for layout in args.layouts.split(","):
         envs = [CoverageEnv(Scenario.random(scenario_seed(args.seed, "train", 0, i), params, LAUNCHES[layout]))
                 for i in range(args.envs)]
@@ -69,15 +72,13 @@ def main() -> None:
             if not parts:
                 continue
             x, y, w = (torch.from_numpy(np.concatenate([p[k] for p in parts]).astype(np.float32)) for k in (1, 2, 3))
+            preds = {"explore's mean": explore_mean(x)}
             with torch.no_grad():
-                pred = torch.cat([prior(c) for c in x.split(4096)])
-            mean = explore_mean(x)
-
-            def err(a, power):
-                return float(((a - y) ** power * w).sum() / w.sum())
-
-            print(f"| {layout} | {lo}–{hi if hi is not None else args.steps} | {err(pred, 2):.4f} | {err(pred, 1):+.4f} "
-                  f"| {err(mean, 2):.4f} | {err(mean, 1):+.4f} | {float((y * w).sum() / w.sum()):.4f} |", flush=True)
+                preds.update({path: torch.cat([prior(c) for c in x.split(4096)]) for path, prior in priors.items()})
+            head = f"| {layout} | {lo}–{hi if hi is not None else args.steps} | {float((y * w).sum() / w.sum()):.4f}"
+            for name, pred in preds.items():
+                sq, signed = (float(((pred - y) ** k * w).sum() / w.sum()) for k in (2, 1))
+                print(f"{head} | {name} | {sq:.4f} | {signed:+.4f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -3,11 +3,13 @@ blocks, its examples and training into a policy file that carries it, and the on
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from safetensors import safe_open
 
 from madp.controllers import make_controller
 from madp.errors import InputError, SettingError
@@ -145,8 +147,12 @@ def test_expectile_loss_is_the_squared_error_at_one_half_and_optimistic_above():
     assert abs(best[0.5] - mean) < 1e-3 and best[0.8] > mean + 0.05
 
 
-def test_train_refuses_an_expectile_outside_the_open_unit_interval(trained, tmp_path):
-    d, _, _ = trained
+def test_train_refuses_an_expectile_outside_the_open_unit_interval_and_records_the_one_it_fits(trained, tmp_path):
+    d, _, scores = trained
+    assert np.isfinite(scores["held_out_bias"]) and np.isfinite(scores["explore_mean_bias"])
+    train(d / "ex.npz", SHIPPED, tmp_path / "e.safetensors", epochs=1, batch=64, expectile=0.8, progress=False)
+    with safe_open(str(tmp_path / "e.safetensors"), framework="pt") as f:
+        assert json.loads(f.metadata()["map_prior_training"])["expectile"] == 0.8
     with pytest.raises(SettingError, match="expectile"):
         train(d / "ex.npz", SHIPPED, tmp_path / "p.safetensors", expectile=1.0, progress=False)
     code, err = cli("value", "train", "--data", d / "ex.npz", "--out", tmp_path / "p.safetensors", "--expectile", "0")
