@@ -35,7 +35,7 @@ from madp.io.lock import locked_dir
 from madp.io.owned import foreign_files
 from madp.policies.checkpoint import load_map_prior, load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
-from madp.policies.select import GRID_M, ORACLE_RULES, VALUE_RULES
+from madp.policies.select import GRID_M, ORACLE_RULES
 from madp.robot.runtime import PRIOR_RULES
 from madp.sim import SimParams
 
@@ -47,10 +47,8 @@ FORMAT = "madp-onnx-runtime/1"
 OPSET = 17
 #: The graphs, by role, and their file names.
 GRAPHS = {"perception": "perception.onnx", "encoder": "encoder.onnx", "denoiser": "denoiser.onnx"}
-#: The map prior's graph (``value`` and ``value_explore`` only), by role, and its file name.
+#: The map prior's graph (the ``value`` rules only), by role, and its file name.
 PRIOR_GRAPH = {"map_prior": "map_prior.onnx"}
-# The value rules the robot runtime runs are its PRIOR_RULES; the ``_joint`` ones also need their
-# neighbours' costs in a round of messages the runtime's protocol does not have.
 RUNTIME_JSON = "runtime.json"
 
 
@@ -182,8 +180,8 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
 
     One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
     settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
-    ``oracle`` rules that read the world, the ``_joint`` value rules), and for a ``value`` rule with a policy file
-    that carries no map prior. With ``value`` or ``value_explore`` the prior is exported too."""
+    ``oracle`` rules that read the world), and for a ``value`` rule with a policy file that carries no map
+    prior. With a ``value`` rule (:data:`madp.robot.runtime.PRIOR_RULES`) the prior is exported too."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
@@ -191,10 +189,6 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
     if sampling.select in ORACLE_RULES:
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
-    if sampling.select in VALUE_RULES and sampling.select not in PRIOR_RULES:
-        raise SettingError("select", f"{sampling.select} sums each neighbour's costs of its candidates, a round of messages "
-                                     "the robot runtime's protocol does not have; it runs none, cell, mppi, medoid, explore, "
-                                     "value and value_explore (evaluate it with --runtime torch)")
     policy = Path(policy)
     model, meta = load_policy(policy)
     prior = load_map_prior(policy) if sampling.select in PRIOR_RULES else None

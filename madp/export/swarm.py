@@ -5,7 +5,8 @@
 :class:`madp.robot.RobotRuntime` (the exported graphs, the numpy sampler): at each
 control step every robot broadcasts its token (:meth:`RobotRuntime.message`), every robot's inbox
 holds the messages of the robots within r_c (over a network, what its ``token`` channel delivered:
-:func:`token_inboxes`), and every robot acts on its inbox. The starting noise (``noise``) is
+:func:`token_inboxes`), and every robot acts on its inbox. Under a ``_joint`` rule every robot then
+gets the cost messages of the robots whose positions it holds (the simulator's cost round). The starting noise (``noise``) is
 
 * ``torch`` (``madp eval --runtime onnx``): the PyTorch policy's (:class:`madp.policies.MADPPolicy`:
   one ``[K, N, 2]`` draw per environment and step from the episode's generator), so a suite run both
@@ -96,14 +97,14 @@ class OnnxMADPPolicy:
             rt.max_age = env.network.settings.max_age
         inboxes = token_inboxes(env, sent)
         draw = None if noise is None else (lambda ids: noise[:, ids])
-        actions, cands = [], []
-        for i in range(env.num_robots):
-            row = None if views is None else views.row(i)
-            res = rt.step(i, env.steps, obs[i], pos[i], inboxes[i], seed, view=row,
-                          noise=draw, own=sent[i])
-            actions.append(res.action_mps)
-            cands.append(res.candidates_mps)
-        return np.stack(actions), np.stack(cands, 1)
+        results = [rt.step(i, env.steps, obs[i], pos[i], inboxes[i], seed, view=None if views is None else views.row(i),
+                           noise=draw, own=sent[i]) for i in range(env.num_robots)]
+        actions = [r.action_mps for r in results]
+        if rt.joint and results and results[0].costs is not None:  # the cost round: wherever positions are held
+            costs = [rt.cost_message(r) for r in results]
+            actions = [rt.choose_joint(r, [costs[j] for j in np.flatnonzero(known[i])], np.flatnonzero(known[i]))
+                       for i, r in enumerate(results)]
+        return np.stack(actions), np.stack([r.candidates_mps for r in results], 1)
 
     def _noise(self, g: torch.Generator, n: int) -> np.ndarray | None:
         if self.noise == "robot":

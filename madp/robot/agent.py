@@ -13,7 +13,10 @@ the motion rule). Per control step t it is driven in three calls, as its radio b
    :meth:`madp.robot.RobotRuntime.view`) and its token message (:meth:`madp.robot.RobotRuntime.message`);
 3. :meth:`RobotAgent.act`: from the token messages its radio delivered, its selection view and the
    exported policy (:meth:`madp.robot.RobotRuntime.step`; starting noise :func:`robot_noise` of the
-   swarm's seed, the step and the neighbourhood's ids) -> :class:`madp.robot.StepResult`.
+   swarm's seed, the step and the neighbourhood's ids) -> :class:`madp.robot.StepResult`;
+4. under a ``_joint`` rule (``runtime.joint``) the action of step 3 is provisional:
+   :meth:`RobotAgent.costs` is its cost message, and :meth:`RobotAgent.choose`, from the cost
+   messages its radio delivered, the action it applies.
 
 The observation, the view and the token are computed by the same functions the simulator computes
 for every robot at once (:meth:`madp.sim.CoverageEnv.observations`, :func:`madp.robot.choice.local_views`),
@@ -59,6 +62,8 @@ class RobotAgent:
         self.observation: np.ndarray | None = None
         self.view: LocalViews | None = None
         self._message: Message | None = None
+        self._known: np.ndarray = np.zeros(0, np.int64)  # ids of the neighbours it holds this step
+        self._result: StepResult | None = None
 
     def observe(self, step: int, position_m: np.ndarray, reading: SensorReading) -> None:
         """Start of control step ``step``: its own position estimate ``position_m [2]`` (m) and its
@@ -76,7 +81,7 @@ class RobotAgent:
         self.position_m = np.array(position_m, dtype=np.float64).reshape(2)
         if self.start_m is None:
             self.start_m = self.position_m.copy()
-        self.observation, self.view, self._message = None, None, None
+        self.observation, self.view, self._message, self._result = None, None, None, None
 
     def beacon(self) -> Message:
         """Its position beacon of this step: ``Message(robot_id, step, position_m)`` (no token)."""
@@ -90,8 +95,9 @@ class RobotAgent:
         its own estimate), its observation, its selection view and its token message of this step."""
         self._started("token")
         own = self.position_m[None]
-        held = self._beacon_positions(beacons)  # [M, 2], ascending by sender
+        ids, held = self._beacon_positions(beacons)  # [M], [M, 2], ascending by sender
         known = within_reach(own, held[None], self.params.comm_radius_m)[0]
+        self._known = ids[known]
         p = self.params
         self.observation = self.maps.observations(own, p.comm_radius_m, p.obs_size, view=(known[None], held[None]))[0]
         self.view = self._view(known, held) if self.runtime.reads_map else None
@@ -105,8 +111,23 @@ class RobotAgent:
         ``[2]`` (m/s, world axes), its K candidates, its message and its inbox's counts."""
         if self._message is None:
             raise RuntimeError(f"robot {self.robot_id}: act() before token() at this step")
-        return self.runtime.step(self.robot_id, self.step, self.observation, self.position_m, tokens, self.seed,
-                                 view=self.view, own=self._message)
+        self._result = self.runtime.step(self.robot_id, self.step, self.observation, self.position_m, tokens,
+                                         self.seed, view=self.view, own=self._message)
+        return self._result
+
+    def costs(self) -> Message:
+        """Under a ``_joint`` rule, after :meth:`act`: its cost message of this step (its K costs)."""
+        if self._result is None:
+            raise RuntimeError(f"robot {self.robot_id}: costs() before act() at this step")
+        return self.runtime.cost_message(self._result)
+
+    def choose(self, costs: list) -> np.ndarray:
+        """Under a ``_joint`` rule, after :meth:`act`: from the cost messages its radio delivered (those
+        of the neighbours it holds count, :meth:`madp.robot.RobotRuntime.choose_joint`), the action ``[2]``
+        (m/s, world axes) it applies."""
+        if self._result is None:
+            raise RuntimeError(f"robot {self.robot_id}: choose() before act() at this step")
+        return self.runtime.choose_joint(self._result, costs, self._known)
 
     # ------------------------------------------------------------------------------------ helpers
     def _started(self, what: str) -> None:
@@ -126,9 +147,11 @@ class RobotAgent:
         view = map_views(self.maps, own, start, offset, known[None], held[None], anchor_m=self.anchor_m[None])
         return self.runtime.view(self.maps, view)
 
-    def _beacon_positions(self, beacons) -> np.ndarray:
-        """``[M, 2]`` float64: the positions of the usable beacons (:func:`madp.robot.read_inbox`'s rules
-        for a message without a token; the range is applied by the caller), ascending by sender."""
+    def _beacon_positions(self, beacons) -> tuple[np.ndarray, np.ndarray]:
+        """The senders ``[M]`` and positions ``[M, 2]`` float64 of the usable beacons
+        (:func:`madp.robot.read_inbox`'s rules for a message without a token; the range is applied by
+        the caller), ascending by sender."""
         kept, _ = read_inbox(beacons, self.robot_id, self.step, self.position_m, None, self.params.comm_radius_m,
                              within=lambda pos: np.ones(len(pos), bool), max_age=self.runtime.max_age)
-        return np.array([p for _, p, _ in kept], dtype=np.float64).reshape(-1, 2)
+        return (np.array([i for i, _, _ in kept], dtype=np.int64),
+                np.array([p for _, p, _ in kept], dtype=np.float64).reshape(-1, 2))

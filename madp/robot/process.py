@@ -14,7 +14,8 @@ the records of :mod:`madp.robot.wire`. numpy, onnxruntime and zenoh only (no tor
 3. **each control step** k, on the world's STEP packet (its position estimate and its sensor's reading):
    ``agent.observe`` -> publishes its beacon -> awaits its radio's beacon DELIVER of step k ->
    ``agent.token`` -> publishes its token -> awaits the token DELIVER of step k -> ``agent.act`` ->
-   publishes its COMMAND for step k. A STEP packet of a later step that arrives while it waits ends
+   (under a ``_joint`` rule: publishes its costs -> awaits the cost DELIVER of step k -> ``agent.choose``)
+   -> publishes its COMMAND for step k. A STEP packet of a later step that arrives while it waits ends
    step k there (it was too late: the world has moved on) and starts the new one; records of older
    steps or other phases are ignored, and records that do not decode are dropped;
 4. it exits with status 0 on the world's stop packet, and with status 3 when nothing has come from the
@@ -31,7 +32,7 @@ from typing import Callable, Sequence
 
 from madp.errors import MadpError, SettingError
 
-from .wire import (Delivery, PHASE_BEACON, PHASE_TOKEN, Start, StepPacket, check_endpoint, check_run_key, decode,
+from .wire import (Delivery, PHASE_BEACON, PHASE_COST, PHASE_TOKEN, Start, StepPacket, check_endpoint, check_run_key, decode,
                    encode_command, encode_hello, encode_ready, encode_send, in_key, out_key, zenoh_config,
                    HELLO_INTERVAL_S)
 
@@ -40,7 +41,7 @@ __all__ = ["EXIT_SILENT", "RobotLink", "main", "serve", "warm_up"]
 #: Exit status of a robot whose world stayed silent for ``--silence-s`` seconds.
 EXIT_SILENT = 3
 #: What a robot sends, by key name (``madp/RUN/robot/I/out/NAME``).
-OUT_NAMES = ("hello", "ready", "beacon", "token", "cmd")
+OUT_NAMES = ("hello", "ready", "beacon", "token", "cost", "cmd")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -142,7 +143,15 @@ def _control_step(agent, link: RobotLink, packet: StepPacket, silence_s: float, 
     rec = _await(link.receive, k, PHASE_TOKEN, silence_s)
     if not isinstance(rec, Delivery):
         return rec or packet
-    link.send("cmd", encode_command(robot, k, agent.act(rec.messages).action_mps))
+    result = agent.act(rec.messages)
+    action = result.action_mps
+    if result.costs is not None:  # a _joint rule: the cost round
+        link.send("cost", encode_send(PHASE_COST, agent.costs()))
+        rec = _await(link.receive, k, PHASE_COST, silence_s)
+        if not isinstance(rec, Delivery):
+            return rec or packet
+        action = agent.choose(rec.messages)
+    link.send("cmd", encode_command(robot, k, action))
     return None
 
 
@@ -182,7 +191,8 @@ def warm_up(agent, params) -> None:
     s, centre = params.sensor_size, np.full(2, params.world_size / 2.0)
     agent.observe(0, centre, SensorReading(robot_cells(centre[None])[0] - s // 2, np.zeros((s, s), np.float32)))
     agent.token([])
-    agent.act([])
+    if agent.act([]).costs is not None:
+        agent.choose([])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -14,7 +14,11 @@ computes it for every robot at once):
    the senders within r_c, ascending by id) and the denoiser graph S times (DPM-Solver++(2M), the
    constants of ``runtime.json``) on K noise draws as one batch; it keeps its own token's K actions,
    moves them back to the world's axes, clips them to u_max and keeps one by the selection rule
-   (:mod:`madp.policies.select`'s rules, computed by :mod:`madp.robot.choice`: numpy and numba).
+   (:mod:`madp.policies.select`'s rules, computed by :mod:`madp.robot.choice`: numpy and numba);
+4. **costs** (the ``_joint`` rules only, :data:`JOINT_RULES`): the action of step 3 is provisional.
+   The robot broadcasts its K costs (:meth:`RobotRuntime.cost_message`), and keeps its action of the
+   copy k whose cost summed with those of the neighbours it holds is least
+   (:meth:`RobotRuntime.choose_joint`).
 
 Noise: candidate k of robot j starts from ``noise(ids)[k, j]``; a robot must know its neighbours' noise
 (so every robot of a neighbourhood sees the same swarm sample), and by default derives it from the
@@ -41,12 +45,16 @@ from .frame import frame_element, inverse_action, transform_observation, transfo
 from .inbox import InboxCounts, read_inbox
 from .prior import value_view
 
-__all__ = ["FORMAT", "RobotRuntime", "StepResult", "check_own", "robot_noise"]
+__all__ = ["FORMAT", "JOINT_RULES", "RobotRuntime", "StepResult", "check_own", "robot_noise"]
 
 FORMAT = "madp-onnx-runtime/1"
-RULES = ("none", "cell", "explore", "mppi", "medoid", "value", "value_explore")
+RULES = ("none", "cell", "explore", "mppi", "medoid", "value", "value_explore", "value_joint", "value_explore_joint")
 #: The rules that rank candidates on the export's map prior (its ``map_prior`` graph).
-PRIOR_RULES = ("value", "value_explore")
+PRIOR_RULES = ("value", "value_explore", "value_joint", "value_explore_joint")
+#: The rules that sum the neighbours' costs of each copy: one more round of messages a step.
+JOINT_RULES = ("value_joint", "value_explore_joint")
+#: The rules whose map prior has ``explore``'s mean as a floor.
+FLOOR_RULES = ("value_explore", "value_explore_joint")
 GRAPHS = ("perception", "encoder", "denoiser")
 
 Noise = Callable[[np.ndarray], np.ndarray]
@@ -76,12 +84,17 @@ def check_own(observation: np.ndarray, position_m: np.ndarray) -> None:
 @dataclass(frozen=True)
 class StepResult:
     """One robot's control step: ``action_mps [2]`` (float64, world axes), the K candidates it chose
-    from ``candidates_mps [K, 2]``, the ``message`` it broadcast and the ``counts`` of its inbox."""
+    from ``candidates_mps [K, 2]``, the ``message`` it broadcast and the ``counts`` of its inbox. Under
+    a ``_joint`` rule ``costs [K]`` (float64) are its own cost of each copy, ``lone`` whether it heard
+    no one (its action is then its lone step), and ``action_mps`` is provisional:
+    :meth:`RobotRuntime.choose_joint` gives the one it applies."""
 
     action_mps: np.ndarray
     candidates_mps: np.ndarray
     message: Message
     counts: InboxCounts
+    costs: np.ndarray | None = None
+    lone: bool = False
 
 
 class RobotRuntime:
@@ -165,6 +178,11 @@ class RobotRuntime:
         """Whether its rule reads the robot's map (the step needs the robot's view)."""
         return self.rule in (*MAP_RULES, *PRIOR_RULES)
 
+    @property
+    def joint(self) -> bool:
+        """Whether its rule sums the neighbours' costs (a round of cost messages each step)."""
+        return self.rule in JOINT_RULES
+
     def predict_prior(self, windows: np.ndarray) -> np.ndarray:
         """The map prior's graph: ``windows [R, 3, H, W]`` (:func:`madp.robot.prior.prior_inputs`) ->
         each coarse cell's importance per m² ``[R, H, W]`` (float64)."""
@@ -178,7 +196,7 @@ class RobotRuntime:
         if self.rule == "explore":
             return map_prior(maps, view)
         if self.rule in PRIOR_RULES:
-            return value_view(maps, view, self.predict_prior, floor=self.rule == "value_explore")
+            return value_view(maps, view, self.predict_prior, floor=self.rule in FLOOR_RULES)
         return view
 
     def frame_of(self, seed: int, step: int) -> int:
@@ -272,14 +290,16 @@ class RobotRuntime:
         u = (x[:, me] * self.std + self.mean).astype(np.float64)  # [K, 2] m/s in the frame
         u = inverse_action(u, g) if g else u
         u = clip_speed(u, self.params.max_speed_mps)
+        if self.joint and len(u) > 1:
+            row = self._row(view, nbr_m)
+            costs = local_cell_costs(row, u[None], self.params)[0]
+            lone = not len(nbr_m)
+            action = lone_steps(row, self.params)[1][0] if lone else u[int(costs.argmin())]
+            return StepResult(action, u, own, counts, costs, lone)
         return StepResult(self.choose(u, view, nbr_m), u, own, counts)
 
-    def choose(self, candidates_mps: np.ndarray, view: LocalViews | None, neighbours_m: np.ndarray) -> np.ndarray:
-        """The action ``[2]`` the selection rule keeps among ``candidates_mps [K, 2]`` (world axes)."""
-        if self.rule == "none" or len(candidates_mps) == 1:
-            return candidates_mps[0]
-        if self.rule == "medoid":
-            return candidates_mps[int(medoid_index(candidates_mps[None])[0])]
+    def _row(self, view: LocalViews | None, neighbours_m: np.ndarray) -> LocalViews:
+        """``view`` (R = 1) with ``neighbours_m [M, 2]`` as its neighbours."""
         if view is None:
             raise ValueError(f"selection rule {self.rule} reads the robot's map: step() needs its view")
         m = max(len(neighbours_m), 1)
@@ -287,10 +307,50 @@ class RobotRuntime:
         nbr[0, :len(neighbours_m)] = neighbours_m
         valid = np.zeros((1, m), bool)
         valid[0, :len(neighbours_m)] = True
-        row = replace(view, neighbours_m=nbr, valid=valid)
+        return replace(view, neighbours_m=nbr, valid=valid)
+
+    def choose(self, candidates_mps: np.ndarray, view: LocalViews | None, neighbours_m: np.ndarray) -> np.ndarray:
+        """The action ``[2]`` the selection rule keeps among ``candidates_mps [K, 2]`` (world axes)."""
+        if self.rule == "none" or len(candidates_mps) == 1:
+            return candidates_mps[0]
+        if self.rule == "medoid":
+            return candidates_mps[int(medoid_index(candidates_mps[None])[0])]
+        row = self._row(view, neighbours_m)
         if not len(neighbours_m):  # it hears no one: the Lloyd step of the disc it expects to cover
             return lone_steps(row, self.params)[1][0]
         costs = local_cell_costs(row, candidates_mps[None], self.params)
         if self.rule == "mppi":
             return np.einsum("k,kd->d", mppi_weights(costs)[0], candidates_mps)
         return candidates_mps[int(costs[0].argmin())]
+
+    # ------------------------------------------------------------------------------ the cost round
+    def cost_message(self, result: StepResult) -> Message:
+        """What a robot broadcasts in the cost round of a ``_joint`` rule: its position and its K costs
+        (float32) as the message's token, from its :meth:`step` ``result``."""
+        if result.costs is None:
+            raise ValueError(f"selection rule {self.rule} has no cost round")
+        m = result.message
+        return Message(m.sender, m.step, np.asarray(m.position_m, np.float64).copy(), result.costs.astype(np.float32))
+
+    def choose_joint(self, result: StepResult, costs: list, neighbours: np.ndarray) -> np.ndarray:
+        """A ``_joint`` rule's action ``[2]``: of its ``result``'s K candidates, that of the copy whose
+        own cost plus the costs of the senders among ``neighbours`` (ids: the robots whose positions it
+        holds within r_c) is least (ties: the lowest copy). ``costs``: the cost messages its radio
+        delivered; those that are not a :class:`Message` of this step with K finite costs, or from a
+        robot not among ``neighbours``, are not counted, and of a sender's several one is. A robot that
+        heard no one keeps its lone step."""
+        if result.costs is None or result.lone:
+            return result.action_mps
+        own = np.asarray(result.costs, np.float64)
+        held = {int(result.message.sender): own}
+        want = {int(j) for j in np.asarray(neighbours).reshape(-1)}
+        for msg in costs:
+            try:
+                sender, step, c = int(msg.sender), int(msg.step), np.asarray(msg.token, np.float64)
+            except (AttributeError, TypeError, ValueError):
+                continue
+            if sender in want and sender not in held and step == result.message.step and c.shape == own.shape \
+                    and np.isfinite(c).all():
+                held[sender] = c
+        total = np.sum([held[j] for j in sorted(held)], axis=0)  # ascending by id, as the simulator sums
+        return result.candidates_mps[int(total.argmin())]

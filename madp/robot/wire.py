@@ -15,8 +15,8 @@ START 2    world -> robot     robot u32, seed u64, max_age i32 (-1: no limit), f
 READY 3    robot -> world     robot u32 (its agent is built: the startup barrier)
 STEP 4     world -> robot     flags u8 (bit 0: stop), robot u32, step u64, position_m f64[2] (its estimate),
                               lo_cell i64[2], s u32, values f32[s * s] (its sensor's reading, indexed [x, y])
-SEND 5     robot -> radio     phase u8 (0 beacon, 1 token), sender u32, step u64, position_m f64[2],
-                              d u32, token f32[d] (d = 0 for a beacon)
+SEND 5     robot -> radio     phase u8 (0 beacon, 1 token, 2 cost), sender u32, step u64, position_m f64[2],
+                              d u32, token f32[d] (d = 0 for a beacon; a cost message's K costs)
 DELIVER 6  radio -> robot     phase u8, robot u32, step u64, count u32, then count times:
                               sender u32, sent_step u64, position_m f64[2], d u32, token f32[d]
 COMMAND 7  robot -> world     robot u32, step u64, action_mps f64[2] (world axes)
@@ -28,10 +28,13 @@ position, reading or action, bad UTF-8 or JSON) decode to None, so no packet can
 delivered message's token may still be anything the sender put there: :func:`madp.robot.read_inbox`
 checks it.
 
+The cost phase is the round of the ``_joint`` selection rules (:data:`madp.robot.runtime.JOINT_RULES`)
+only: each robot's K costs of its candidates' copies, sent after it sampled and before its command.
+
 Keys (``RUN`` a run's key, ``I`` a robot's id): the world publishes to ``madp/RUN/robot/I/in/<name>``
-(``start``, ``step``, ``beacons``, ``tokens``) and subscribes to ``madp/RUN/robot/*/out/*``; robot I
-subscribes to ``madp/RUN/robot/I/in/*`` only and publishes to ``madp/RUN/robot/I/out/<name>``
-(``hello``, ``ready``, ``beacon``, ``token``, ``cmd``). Sessions (:func:`zenoh_config`): peer mode,
+(``start``, ``step``, ``beacons``, ``tokens``, ``costs``) and subscribes to ``madp/RUN/robot/*/out/*``;
+robot I subscribes to ``madp/RUN/robot/I/in/*`` only and publishes to ``madp/RUN/robot/I/out/<name>``
+(``hello``, ``ready``, ``beacon``, ``token``, ``cost``, ``cmd``). Sessions (:func:`zenoh_config`): peer mode,
 multicast and gossip scouting off; the world listens on one loopback endpoint, each robot connects to
 it and listens nowhere, so robots reach each other only through the world's radio.
 """
@@ -50,7 +53,7 @@ from madp.errors import SettingError
 from madp.sim.network import Message
 
 __all__ = ["COMMAND", "Command", "DELIVER", "Delivery", "HELLO", "HELLO_INTERVAL_S", "Hello", "PHASES", "PHASE_BEACON",
-           "PHASE_TOKEN", "READY", "Ready", "SEND", "START", "STEP", "STOP", "Sent", "Start", "StepPacket", "VERSION",
+           "PHASE_COST", "PHASE_TOKEN", "READY", "Ready", "SEND", "START", "STEP", "STOP", "Sent", "Start", "StepPacket", "VERSION",
            "check_endpoint", "check_run_key", "decode", "encode_command", "encode_delivery", "encode_hello",
            "encode_ready", "encode_send", "encode_start", "encode_step", "encode_stop", "in_key", "out_key", "robot_of",
            "world_subscription", "zenoh_config"]
@@ -58,9 +61,9 @@ __all__ = ["COMMAND", "Command", "DELIVER", "Delivery", "HELLO", "HELLO_INTERVAL
 #: The record format's version: the first byte of every record.
 VERSION = 1
 HELLO, START, READY, STEP, SEND, DELIVER, COMMAND = 1, 2, 3, 4, 5, 6, 7
-#: The radio's phases of a control step: position beacons, then tokens.
-PHASE_BEACON, PHASE_TOKEN = 0, 1
-PHASES = ("beacon", "token")
+#: The radio's phases of a control step: position beacons, then tokens, then (``_joint`` rules) costs.
+PHASE_BEACON, PHASE_TOKEN, PHASE_COST = 0, 1, 2
+PHASES = ("beacon", "token", "cost")
 #: Largest sensor side s, token size d and number of delivered messages a record may hold.
 MAX_SIDE, MAX_TOKEN, MAX_COUNT = 4096, 65536, 1 << 20
 #: Seconds between a starting robot's HELLOs.
@@ -179,7 +182,7 @@ def _item(message: Message) -> tuple[tuple, bytes]:
 
 
 def encode_send(phase: int, message: Message) -> bytes:
-    """A SEND record: robot ``message.sender``'s beacon (token None) or token of ``phase``."""
+    """A SEND record: robot ``message.sender``'s beacon (token None), token or costs of ``phase``."""
     (sender, step, px, py, d), tok = _item(message)
     return _SEND.pack(VERSION, SEND, int(phase), sender, step, px, py, d) + tok
 
@@ -237,7 +240,7 @@ def _decode(buf: memoryview):
         phase, sender, step, px, py, d = _SEND.unpack_from(buf)[2:]
         if phase >= len(PHASES) or d > MAX_TOKEN or n != _SEND.size + 4 * d:
             return None
-        token = _f32(buf, _SEND.size, d) if phase == PHASE_TOKEN else None
+        token = _f32(buf, _SEND.size, d) if phase != PHASE_BEACON else None
         if phase == PHASE_BEACON and d:
             return None
         return Sent(phase, Message(sender, step, np.array([px, py]), token))
@@ -251,7 +254,7 @@ def _decode(buf: memoryview):
             at += _ITEM.size
             if d > MAX_TOKEN or n < at + 4 * d:
                 return None
-            token = _f32(buf, at, d) if phase == PHASE_TOKEN else None
+            token = _f32(buf, at, d) if phase != PHASE_BEACON else None
             if phase == PHASE_BEACON and d:
                 return None
             at += 4 * d

@@ -19,7 +19,7 @@ from madp.robot.wire import in_key, robot_of, world_subscription, zenoh_config
 __all__ = ["Arrival", "WorldBus", "free_endpoint", "IN_NAMES"]
 
 #: What the world sends each robot, by key name (``madp/RUN/robot/I/in/NAME``).
-IN_NAMES = ("start", "step", "beacons", "tokens")
+IN_NAMES = ("start", "step", "beacons", "tokens", "costs")
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,12 @@ sender's :class:`Message` of the step it was sent. The same channels, payloads a
 ``madp rollout`` over the same network (``position``: the reported positions; ``token``: position and
 token), so a lockstep swarm hears what the one-process run hears.
 
-A message the radio cannot carry (a token of the wrong size, a sender that is not the robot whose key
-it came on) is dropped and counted as ``malformed`` for its sender.
+The ``cost`` channel (the cost round of the ``_joint`` selection rules) is not drawn by the model: a
+robot's cost message of the step goes to every robot that holds its position beacon at that step
+(:meth:`Radio.relay`), as the simulator's cost round delivers it wherever it delivered the position.
+
+A message the radio cannot carry (a token or costs of the wrong size, a sender that is not the robot
+whose key it came on) is dropped and counted as ``malformed`` for its sender.
 """
 
 from __future__ import annotations
@@ -21,8 +25,9 @@ from madp.sim.network import Message, Network
 
 __all__ = ["CHANNELS", "ChannelCounts", "Radio"]
 
-#: The radio's channels, by phase (beacons, tokens): the names :mod:`madp.sim.network` draws losses for.
-CHANNELS = ("position", "token")
+#: The radio's channels, by phase (beacons, tokens, costs): the first two are the names
+#: :mod:`madp.sim.network` draws losses for.
+CHANNELS = ("position", "token", "cost")
 
 
 class ChannelCounts:
@@ -45,18 +50,20 @@ class ChannelCounts:
 
 class Radio:
     """The radio of ``network`` (one episode of :class:`madp.sim.network.Network`) for tokens of
-    ``token_dim`` values."""
+    ``token_dim`` values and cost messages of ``costs`` values (None: no cost round)."""
 
-    def __init__(self, network: Network, token_dim: int):
-        self.network, self.token_dim = network, int(token_dim)
+    def __init__(self, network: Network, token_dim: int, costs: int | None = None):
+        self.network, self.token_dim, self.costs = network, int(token_dim), costs
         self.counts = {ch: ChannelCounts(network.num_robots) for ch in CHANNELS}
 
     def accept(self, channel: str, robot: int, message: Message, size_bytes: int) -> bool:
         """Whether robot ``robot``'s ``message`` (``size_bytes`` on the wire) can go on ``channel``:
-        its sender is ``robot`` and, on ``token``, its token has ``token_dim`` values. Counts it."""
+        its sender is ``robot`` and, on ``token``, its token has ``token_dim`` values (on ``cost``, its
+        costs ``costs``). Counts it."""
         c = self.counts[channel]
-        ok = int(message.sender) == robot and (channel != "token" or (message.token is not None
-                                                                      and message.token.shape == (self.token_dim,)))
+        size = {"token": self.token_dim, "cost": self.costs}.get(channel)
+        ok = int(message.sender) == robot and (channel == "position" or (message.token is not None and size is not None
+                                                                         and message.token.shape == (size,)))
         if ok:
             c.sent[robot] += 1
             c.sent_bytes[robot] += size_bytes
@@ -80,6 +87,12 @@ class Radio:
                 payload[i, 2:] = m.token
             senders[i] = True
         return self.network.exchange(channel, step, payload, senders).messages()
+
+    def relay(self, sent: dict[int, Message], holders: list[set[int]]) -> list[list[Message]]:
+        """The cost round: for each robot i, the cost messages of ``sent`` (robot -> its accepted
+        message of this step) whose senders are among ``holders[i]`` (the robots whose beacons i holds
+        at this step), ascending by sender."""
+        return [[sent[j] for j in sorted(sent) if j in held and j != i] for i, held in enumerate(holders)]
 
     def delivered(self, channel: str, robot: int, count: int, size_bytes: int) -> None:
         c = self.counts[channel]

@@ -24,7 +24,7 @@ from madp.io.owned import clear_owned
 from madp.sim import Scenario
 from madp.sim.network import NetworkSettings
 
-from .world import BEACON_BY, COMMAND_BY, TOKEN_BY, World
+from .world import BEACON_BY, COMMAND_BY, COST_BY, TOKEN_BY, World
 
 __all__ = ["OWNED", "run_swarm"]
 
@@ -118,7 +118,7 @@ def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | P
             meta = {"scenario": json.dumps(sc.to_dict()), "steps": steps, "dt_s": p.dt_s, "seed": seed,
                     "controller": "madp", "runtime": "swarm", "network": net.as_dict(), "rate_hz": rate_hz}
             log = RosbagWriter(out / "swarm.mcap", p.dt_s, meta)
-            world = World(sc, bus, runtime.token_dim, net, rate_hz, log)
+            world = World(sc, bus, runtime.token_dim, net, rate_hz, log, runtime.candidates if runtime.joint else None)
             robots = RobotProcesses(world.n, export, bus.endpoint, bus.run_key)
             startup_s = world.connect(robots)
             bar = _Progress(steps, progress, f"{world.n} robot processes connected in {startup_s:.1f} s")
@@ -142,8 +142,9 @@ def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | P
         summary = {
             "scenario": str(scenario), "name": sc.name, "seed": seed, "robots_n": world.n, "steps": steps,
             "mode": "lockstep" if rate_hz is None else "real time", "rate_hz": rate_hz,
-            "deadlines": None if rate_hz is None else {"beacon": BEACON_BY, "token": TOKEN_BY, "command": COMMAND_BY,
-                                                       "period_ms": 1e3 / rate_hz},
+            "deadlines": None if rate_hz is None else {"beacon": BEACON_BY, "token": TOKEN_BY,
+                                                       **({"cost": COST_BY} if runtime.joint else {}),
+                                                       "command": COMMAND_BY, "period_ms": 1e3 / rate_hz},
             "network": net.as_dict(), "export": str(export),
             "policy": {"rule": runtime.rule, "candidates": runtime.candidates, "frame": runtime.frame,
                        "sampler": spec["sampler"]["name"], "sampling_steps": spec["sampler"]["steps"],

@@ -16,14 +16,17 @@ one-line error.
 2. **beacon phase**: it collects the robots' beacons; the radio puts them through the ``position``
    channel and sends each robot its DELIVER of what the network model delivers to it;
 3. **token phase**: the same with the robots' token messages and the ``token`` channel;
-4. **command phase**: it collects the robots' commands and steps the world: a robot whose command did
+4. **cost phase**, only when the robots' rule is a ``_joint`` one (``costs``: their K): it collects
+   each robot's costs of its candidates' copies and sends each robot those of the robots whose
+   beacons it was delivered in step 2 (:meth:`madp.swarm.radio.Radio.relay`);
+5. **command phase**: it collects the robots' commands and steps the world: a robot whose command did
    not come keeps its last one (zero before its first), a failed robot's is zero.
 
 Lockstep (no rate): each phase waits for every live robot. A live robot process that sends nothing
 in a phase for :data:`STALL_S` seconds is killed and failed.
 
 Real time (``rate_hz`` R, period P = 1/R): step k's phases end at t0 + (k + f) · P with
-f = :data:`BEACON_BY` (0.25), :data:`TOKEN_BY` (0.60) and :data:`COMMAND_BY` (1.0), t0 the end of
+f = :data:`BEACON_BY` (0.25), :data:`TOKEN_BY` (0.60), :data:`COST_BY` (0.90) and :data:`COMMAND_BY` (1.0), t0 the end of
 startup; the world's own work of a step (sensing, the cost, the log) comes first in its period, so
 the STEP packets go out at t0 + k · P plus that work. At each phase's end the radio delivers what came
 in time; what comes later is lost for that phase (counted ``late``); a command that misses its step's
@@ -43,8 +46,8 @@ import time
 
 import numpy as np
 
-from madp.robot.wire import (Command, PHASE_BEACON, PHASE_TOKEN, Ready, Sent, decode, encode_delivery, encode_start,
-                             encode_step, encode_stop, Hello)
+from madp.robot.wire import (Command, PHASE_BEACON, PHASE_COST, PHASE_TOKEN, Ready, Sent, decode, encode_delivery,
+                             encode_start, encode_step, encode_stop, Hello)
 from madp.errors import MadpError
 from madp.sim import CoverageEnv, Scenario
 from madp.sim.network import Network, NetworkSettings
@@ -53,13 +56,13 @@ from madp.sim.voronoi import coverage_cost
 from .radio import CHANNELS, Radio
 from .robots import describe_exit
 
-__all__ = ["BEACON_BY", "COMMAND_BY", "PHASE_NAMES", "STALL_S", "TOKEN_BY", "World"]
+__all__ = ["BEACON_BY", "COMMAND_BY", "COST_BY", "PHASE_NAMES", "STALL_S", "TOKEN_BY", "World"]
 
 #: Phase deadlines of real time, as fractions of the period after the step's scheduled start.
-BEACON_BY, TOKEN_BY, COMMAND_BY = 0.25, 0.60, 1.0
-#: The three phases of a control step, as counted in ``misses_by_phase``.
-PHASE_NAMES = ("beacon", "token", "command")
-COMMAND_PHASE = 2
+BEACON_BY, TOKEN_BY, COST_BY, COMMAND_BY = 0.25, 0.60, 0.90, 1.0
+#: The phases of a control step, as counted in ``misses_by_phase`` (``cost`` only with a cost round).
+PHASE_NAMES = ("beacon", "token", "cost", "command")
+COMMAND_PHASE = 3
 #: Lockstep: seconds a live robot may send nothing in a phase before it is killed and failed.
 STALL_S = 60.0
 #: Startup: seconds every robot has to connect, plus as many per robot.
@@ -71,24 +74,29 @@ POLL_S = 0.05
 class World:
     """A swarm of ``scenario``'s robots over ``network`` (ideal when None), reached through ``bus``
     (:class:`madp.swarm.bus.WorldBus`); tokens of ``token_dim`` values; ``rate_hz``: real time (None:
-    lockstep); ``log``: a :class:`madp.robot.ros2.RosbagWriter` or None. Its robot processes
+    lockstep); ``log``: a :class:`madp.robot.ros2.RosbagWriter` or None; ``costs``: the robots' K
+    when their rule has a cost round (None: none). Its robot processes
     (:class:`madp.swarm.robots.RobotProcesses`) join at :meth:`connect`."""
 
     def __init__(self, scenario: Scenario, bus, token_dim: int, network: NetworkSettings | None = None,
-                 rate_hz: float | None = None, log=None):
+                 rate_hz: float | None = None, log=None, costs: int | None = None):
         self.env = CoverageEnv(scenario)  # physics and sensors; the network is the radio's, below
         self.settings = network or NetworkSettings()
         p, n = self.env.params, self.env.num_robots
         self.seed = scenario.seed if scenario.seed is not None else 0
         self.network = Network(self.settings, n, p.comm_radius_m, p.world_size, self.seed)
-        self.radio = Radio(self.network, token_dim)
+        self.radio = Radio(self.network, token_dim, costs)
+        self.cost_round = costs is not None
+        self.phases = PHASE_NAMES if self.cost_round else tuple(p for p in PHASE_NAMES if p != "cost")
+        self.channels = CHANNELS if self.cost_round else CHANNELS[:2]
+        self._holders: list[set[int]] = [set() for _ in range(n)]  # whose beacons each robot holds this step
         self.bus, self.robots, self.rate_hz, self.log = bus, None, rate_hz, log
         self.n = n
         self.missed = np.zeros(n, bool)  # this step's robots that missed a phase
         self.last_u = np.zeros((n, 2))
         self.cost = [1.0]
         self.latency_ms: list[list[float]] = [[] for _ in range(n)]
-        self.misses = np.zeros((n, len(PHASE_NAMES)), np.int64)
+        self.misses = np.zeros((n, len(self.phases)), np.int64)  # by phase of self.phases
         self.deadline_misses = np.zeros(n, np.int64)
         self.late_commands = np.zeros(n, np.int64)
         self.failed_at: list[int | None] = [None] * n
@@ -162,7 +170,7 @@ class World:
     def _take(self, a, step: int, phase: int, want: set, got: dict) -> bool:
         """File one arrival during ``phase`` of ``step``; True when it is one the phase waits for."""
         rec, i = decode(a.data), a.robot
-        if isinstance(rec, Sent) and rec.phase in (PHASE_BEACON, PHASE_TOKEN) and i < self.n:
+        if isinstance(rec, Sent) and rec.phase < len(self.channels) and i < self.n:
             channel = CHANNELS[rec.phase]
             if rec.message.step == step and rec.phase == phase and i in want and i not in got:
                 if self.radio.accept(channel, i, rec.message, len(a.data)):
@@ -208,13 +216,18 @@ class World:
         self._poll(step, want - got.keys())
         for i in want - got.keys():
             if self.network.alive(step)[i]:
-                self.misses[i, phase] += 1
+                self.misses[i, self.phases.index(PHASE_NAMES[phase])] += 1
                 self.missed[i] = True
         return got
 
     def _deliver(self, step: int, phase: int, sent: dict) -> None:
-        channel, name = CHANNELS[phase], ("beacons", "tokens")[phase]
-        heard = self.radio.exchange(channel, step, sent)
+        channel, name = CHANNELS[phase], ("beacons", "tokens", "costs")[phase]
+        if phase == PHASE_COST:
+            heard = self.radio.relay(sent, self._holders)
+        else:
+            heard = self.radio.exchange(channel, step, sent)
+        if phase == PHASE_BEACON:
+            self._holders = [{int(m.sender) for m in h} for h in heard]
         for i in np.flatnonzero(self.network.alive(step)):
             data = encode_delivery(phase, int(i), step, heard[i])
             self.bus.send(int(i), name, data)
@@ -244,6 +257,9 @@ class World:
         self._deliver(step, PHASE_BEACON, beacons)
         tokens = self._collect(step, PHASE_TOKEN, net.alive(step), self._deadline(step, TOKEN_BY))
         self._deliver(step, PHASE_TOKEN, tokens)
+        if self.cost_round:
+            costs = self._collect(step, PHASE_COST, net.alive(step), self._deadline(step, COST_BY))
+            self._deliver(step, PHASE_COST, costs)
         commands = self._collect(step, COMMAND_PHASE, net.alive(step), self._deadline(step, COMMAND_BY))
         work = time.perf_counter()
         self.deadline_misses += self.missed
@@ -288,10 +304,10 @@ class World:
                 "latency_ms": {"p50": pct(lat, 50), "p99": pct(lat, 99), "max": float(max(lat)) if lat else None,
                                "count": len(lat)},
                 "deadline_misses": int(self.deadline_misses[i]),
-                "misses_by_phase": {name: int(self.misses[i, k]) for k, name in enumerate(PHASE_NAMES)},
+                "misses_by_phase": {name: int(self.misses[i, k]) for k, name in enumerate(self.phases)},
                 "late_commands": int(self.late_commands[i]),
                 "failed_at_step": self.failed_at[i], "failure": self.why[i], "exit": describe_exit(codes[i]),
-                "messages": {**{ch: self.radio.counts[ch].of(i) for ch in CHANNELS},
+                "messages": {**{ch: self.radio.counts[ch].of(i) for ch in self.channels},
                              **{k: {"count": int(v[i, 0]), "bytes": int(v[i, 1])} for k, v in self.wire.items()}},
             })
         every = [x for lat in self.latency_ms for x in lat]
@@ -302,6 +318,6 @@ class World:
             "world_ms": {"p50": pct(self.world_ms, 50), "p99": pct(self.world_ms, 99)},
             "failed": [{"robot": i, "step": self.failed_at[i], "why": self.why[i]} for i in range(self.n)
                        if self.failed_at[i] is not None],
-            "messages": {**{ch: self.radio.counts[ch].total() for ch in CHANNELS},
+            "messages": {**{ch: self.radio.counts[ch].total() for ch in self.channels},
                          **{k: {"count": int(v[:, 0].sum()), "bytes": int(v[:, 1].sum())} for k, v in self.wire.items()}},
         }

@@ -124,8 +124,8 @@ def test_robot_runtime_bench_runs_the_evaluation_default():
 
 def test_a_value_rule_exports_the_policy_files_map_prior(tmp_path):
     """``--select value``: the export holds the map prior's graph (against PyTorch, 1e-5, on windows of
-    any side), runtime.json names it with its sha256; ``value_joint`` and a file without a prior are
-    refused in one line."""
+    any side), runtime.json names it with its sha256, and so does ``value_joint``'s; ``oracle_joint`` (it
+    reads the true map) and a file without a prior are refused in one line."""
     from madp.export.onnx import PRIOR_GRAPH, export_policy
     from madp.models.map_prior import MapPrior
     from madp.policies import SamplingSettings
@@ -146,7 +146,9 @@ def test_a_value_rule_exports_the_policy_files_map_prior(tmp_path):
         assert np.abs(sess.run(None, {"windows": x.numpy()})[0] - ref).max() <= 1e-5
     plain = export_policy(shipped_checkpoint("madp"), tmp_path / "explore")
     assert "map_prior" not in plain["graphs"] and not (tmp_path / "explore" / PRIOR_GRAPH["map_prior"]).exists()
-    r = madp("export", str(policy), "--out", str(tmp_path / "j"), "--select", "value_joint")
-    assert r.returncode == 2 and "value_joint" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    joint = export_policy(policy, tmp_path / "joint", SamplingSettings.of(select="value_joint"))
+    assert joint["selection"]["rule"] == "value_joint" and "map_prior" in joint["graphs"]
+    r = madp("export", str(policy), "--out", str(tmp_path / "j"), "--select", "oracle_joint")
+    assert r.returncode == 2 and "oracle_joint" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = madp("export", str(shipped_checkpoint("madp")), "--out", str(tmp_path / "v"), "--select", "value")
     assert r.returncode == 2 and "carries no map prior" in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -46,11 +46,12 @@ def test_control_steps_match_the_pytorch_policy(frame):
     assert env_o.neighbours().sum() > 0  # neighbourhoods of several robots, not lone ones
 
 
-@pytest.mark.parametrize("select", ["value", "value_explore"])
+@pytest.mark.parametrize("select", ["value", "value_explore", "value_joint", "value_explore_joint"])
 def test_value_rules_through_the_export_match_the_pytorch_policy(tmp_path, select):
-    """The ``value`` rules robot by robot, the map prior through its exported graph, act within 1e-4
-    m/s of the PyTorch policy with the same noise over 3 steps of a packed swarm; the prior (random
-    here) changes what some robot keeps against ``explore``."""
+    """The ``value`` rules robot by robot, the map prior through its exported graph (and under a
+    ``_joint`` rule the cost round), act within 1e-4 m/s of the PyTorch policy with the same noise over
+    3 steps of a packed swarm; the prior (random here) changes what some robot keeps against
+    ``explore``, and the cost round what it keeps against the same rule robot by robot."""
     from madp.models.map_prior import MapPrior
     from madp.policies.checkpoint import load_map_prior
     from madp.training.map_prior import add_prior
@@ -62,7 +63,9 @@ def test_value_rules_through_the_export_match_the_pytorch_policy(tmp_path, selec
     sc = Scenario.random(3, SimParams(num_robots=10, num_features=8), launch=(300.0, 300.0, 650.0, 650.0))
     env_t, env_o = CoverageEnv(sc), CoverageEnv(sc)
     torch_policy = MADPPolicy(load(policy, "madp")[0], sampling=sampling, seed=3, map_prior=load_map_prior(policy))
-    explore = MADPPolicy(load(policy, "madp")[0], sampling=SamplingSettings(), seed=3)
+    # the rule it is checked against: explore, and for a _joint rule its per-robot rule (no cost round)
+    other = SamplingSettings.of(select=select.removesuffix("_joint")) if select.endswith("_joint") else SamplingSettings()
+    explore = MADPPolicy(load(policy, "madp")[0], sampling=other, seed=3, map_prior=load_map_prior(policy))
     onnx_policy = OnnxMADPPolicy(policy, sampling, seed=3)
     assert onnx_policy.runtime.rule == select
     g_t, g_o, g_e = noise_generator(3), noise_generator(3), noise_generator(3)

@@ -205,3 +205,31 @@ def test_user_errors_are_one_line_before_any_process_starts(tmp_path, export_dir
         base[flag] = value
     assert_one_line(*cli("swarm", *[x for kv in base.items() for x in kv]), needle)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("network", [None, LOSSY], ids=["ideal", "lossy"])
+def test_a_joint_rule_runs_its_cost_round_and_equals_the_one_process_reference(tmp_path, network):
+    """``value_joint`` (a map prior, random here): each robot sends its K costs in a fourth phase and
+    keeps the copy of least summed cost over the neighbours it holds; the lockstep swarm ends where the
+    one-process run ends, and elsewhere than the same rule robot by robot."""
+    import torch
+
+    from madp.models.map_prior import MapPrior
+    from madp.training.map_prior import add_prior
+
+    torch.manual_seed(1)
+    policy = tmp_path / "policy.safetensors"
+    add_prior(shipped_checkpoint("madp"), policy, MapPrior().eval(), {})
+    joint = SamplingSettings.of(select="value_joint")
+    sc = Scenario.random(7, scenario().params, launch=(150.0, 150.0, 330.0, 330.0))
+    sc.save(tmp_path / "sc.json")
+    s = run_swarm(tmp_path / "sc.json", exported(policy, joint), 10, tmp_path / "out", network=network, progress=False)
+
+    def reference(sampling):
+        ctrl = OnnxMADPPolicy(policy, sampling, seed=sc.seed, noise="robot")
+        return rollout(CoverageEnv(sc, network=network), ctrl, 10).normalized_cost
+
+    assert np.abs(np.array(s["cost"]) - reference(joint)).max() <= 1e-6
+    assert np.abs(reference(SamplingSettings.of(select="value")) - reference(joint)).max() > 1e-4
+    assert all(r["messages"]["cost"]["sent"] == 10 for r in s["robots"]) and s["messages"]["cost"]["delivered"] > 0
+    assert all(set(r["misses_by_phase"]) == {"beacon", "token", "cost", "command"} for r in s["robots"])

@@ -90,3 +90,13 @@ def test_damaged_records_never_raise(which, at, byte, extra, how):
            "splice": good[:at] + extra + good[at:]}[how]
     rec = decode(bad)
     assert rec is None or type(rec) in (Hello, Start, Ready, StepPacket, Sent, Delivery, Command)
+
+
+def test_cost_messages_decode_with_their_costs_and_an_unknown_phase_is_refused():
+    costs = np.array([0.5, -1.25, 3.0, 8.0], np.float32)
+    sent = decode(wire.encode_send(wire.PHASE_COST, Message(2, 9, np.array([4.0, 5.0]), costs)))
+    assert isinstance(sent, Sent) and sent.phase == wire.PHASE_COST and np.array_equal(sent.message.token, costs)
+    got = decode(wire.encode_delivery(wire.PHASE_COST, 1, 9, [Message(2, 9, np.array([4.0, 5.0]), costs)]))
+    assert isinstance(got, Delivery) and got.phase == wire.PHASE_COST and np.array_equal(got.messages[0].token, costs)
+    assert decode(wire.encode_send(3, Message(2, 9, np.array([4.0, 5.0]), costs))) is None
+    assert decode(wire.encode_delivery(3, 1, 9, [])) is None
