@@ -263,8 +263,9 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         from madp.policies.checkpoint import load_map_prior
 
         out["robot_runtime"] = bench_robot_runtime(checkpoint, repeats=repeats)
-        if checkpoint is not None and load_map_prior(checkpoint) is not None:  # its value rule through the export too
+        if checkpoint is not None and load_map_prior(checkpoint) is not None:  # its value rules through the export too
             out["robot_runtime_value"] = bench_robot_runtime(checkpoint, repeats=repeats, select="value")
+            out["robot_runtime_value_joint"] = bench_robot_runtime(checkpoint, repeats=repeats, select="value_joint")
     if roofline:
         from .roofline import roofline as measure_roofline
 
@@ -317,8 +318,9 @@ def format_table(r: dict) -> list[str]:
         from madp.export.bench import format_robot_runtime
 
         lines += format_robot_runtime(r["robot_runtime"])
-        if r.get("robot_runtime_value"):
-            lines += format_robot_runtime(r["robot_runtime_value"])
+        for key in ("robot_runtime_value", "robot_runtime_value_joint"):
+            if r.get(key):
+                lines += format_robot_runtime(r[key])
     if r.get("roofline"):
         from .roofline import format_roofline
 

@@ -7,7 +7,9 @@ sampling (:class:`madp.policies.SamplingSettings`' defaults). A robot's step is 
 per control step once it has sensed: its token (perception graph, neighbourhood offset) and its act
 (inbox checks, encoder once, denoiser S times on K samples, the choice); its observation and map
 views are computed before timing (as the simulator gives them), except that under a ``value`` rule the
-map prior's graph runs on the robot's own window inside the timing. The PyTorch figure is
+map prior's graph runs on the robot's own window inside the timing, and under a ``_joint`` rule the
+sum of its neighbours' costs (their cost messages from an untimed pass) too. A policy distilled into
+one sampler step samples at S = 1. The PyTorch figure is
 :meth:`madp.policies.MADPPolicy.act_batch` on the whole swarm (observations and the choice included)
 divided by N. Medians of ``repeats`` passes over all robots, one untimed pass first.
 """
@@ -26,8 +28,8 @@ __all__ = ["bench_robot_runtime", "format_robot_runtime"]
 def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, candidates: int | None = None, repeats: int = 5,
                         seed: int = 0, select: str | None = None) -> dict:
     """Latency per robot per control step of the runtime (one thread) and of PyTorch (one thread), at the
-    evaluation default's sampling (``candidates``: another K; ``select``: another rule, ``value`` and
-    ``value_explore`` with the checkpoint's map prior)."""
+    evaluation default's sampling (``candidates``: another K; ``select``: another rule, the ``value``
+    rules with the checkpoint's map prior)."""
     import torch
 
     from madp.models.bench import _threads
@@ -42,7 +44,9 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     from .onnx import export_policy
 
     path = checkpoint or str(shipped_checkpoint("madp"))
-    sampling = SamplingSettings.of(select=select, candidates=candidates)
+    model = load(path, "madp")[0]
+    one_step = model.config.prediction == "sample"  # distilled into one sampler step
+    sampling = SamplingSettings.of(select=select, candidates=candidates, sampling_steps=1 if one_step else None)
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     with tempfile.TemporaryDirectory() as tmp:
         export_policy(path, Path(tmp), sampling)
@@ -55,6 +59,8 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
         windows = window_inputs(env.maps, base)[0] if rt.rule in PRIOR_RULES else None
         sent = [rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed) for i in range(num_robots)]
         inboxes = [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(num_robots)]
+        costs = [rt.cost_message(rt.step(i, 0, obs[i], pos[i], inboxes[i], seed, view=rows[i], own=sent[i]))
+                 for i in range(num_robots)] if rt.joint else None
 
         def one_pass() -> float:
             t0 = time.perf_counter()
@@ -62,12 +68,14 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
                 own = rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed)
                 if windows is not None:
                     rt.predict_prior(windows[i:i + 1])
-                rt.step(i, 0, obs[i], pos[i], inboxes[i], seed, view=rows[i], own=own)
+                res = rt.step(i, 0, obs[i], pos[i], inboxes[i], seed, view=rows[i], own=own)
+                if costs is not None:
+                    ids = np.flatnonzero(nbr[i])
+                    rt.choose_joint(res, [costs[j] for j in ids], ids)
             return (time.perf_counter() - t0) / num_robots
 
         one_pass()
         robot = [one_pass() for _ in range(repeats)]
-    model = load(path, "madp")[0]
     policy = MADPPolicy(model, "decentralized", sampling,
                         map_prior=load_map_prior(path) if sampling.select in PRIOR_RULES else None)
     gen = noise_generator(seed)

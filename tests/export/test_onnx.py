@@ -152,3 +152,15 @@ def test_a_value_rule_exports_the_policy_files_map_prior(tmp_path):
     assert r.returncode == 2 and "oracle_joint" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = madp("export", str(shipped_checkpoint("madp")), "--out", str(tmp_path / "v"), "--select", "value")
     assert r.returncode == 2 and "carries no map prior" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_robot_runtime_bench_runs_a_one_step_student_at_s_1_and_a_joint_rule_with_its_cost_round():
+    """A policy file distilled into one sampler step (with a map prior: the kept expectile policy) is
+    timed at S = 1, under ``value_joint`` with the sum of its neighbours' costs (structure, not speed)."""
+    from pathlib import Path
+
+    from madp.export.bench import bench_robot_runtime
+
+    policy = Path(__file__).parents[2] / "docs/results/value-expectile-k8-2026-12-05/policy.safetensors"
+    r = bench_robot_runtime(str(policy), num_robots=6, repeats=1, select="value_joint")
+    assert (r["num_steps"], r["select"]) == (1, "value_joint") and r["onnxruntime_per_robot_s"] > 0
