@@ -17,11 +17,12 @@ from tests.swarm.swarm_testutils import scenario
 
 class StandIns:
     """The bus and the robot processes of :class:`World`: every robot answers each STEP and DELIVER
-    at once (beacon, token, command ``[1 + i + step / 10, 0]``), except the records listed in ``withheld``
-    as ``(robot, step, what)`` with what in beacon, token, command."""
+    at once (beacon, token, command ``[1 + i + step / 10, 0]``; with ``costs`` K, a cost message of K
+    values ``i`` between the token and the command), except the records listed in ``withheld`` as
+    ``(robot, step, what)`` with what in beacon, token, cost, command."""
 
-    def __init__(self, n: int, withheld=(), silent: bool = False):
-        self.n, self.withheld, self.silent = n, set(withheld), silent
+    def __init__(self, n: int, withheld=(), silent: bool = False, costs: int | None = None):
+        self.n, self.withheld, self.silent, self.costs = n, set(withheld), silent, costs
         self.queue: list[Arrival] = []
         self.sent: list[tuple[int, str, object]] = []
         self.pids = list(range(1000, 1000 + n))
@@ -40,7 +41,12 @@ class StandIns:
             self._answer(i, wire.encode_send(wire.PHASE_BEACON, Message(i, rec.step, rec.position_m)))
         elif isinstance(rec, wire.Delivery) and rec.phase == wire.PHASE_BEACON and (i, rec.step, "token") not in self.withheld:
             self._answer(i, wire.encode_send(wire.PHASE_TOKEN, Message(i, rec.step, np.zeros(2), np.zeros(34, np.float32))))
-        elif isinstance(rec, wire.Delivery) and rec.phase == wire.PHASE_TOKEN and (i, rec.step, "command") not in self.withheld:
+        elif isinstance(rec, wire.Delivery) and rec.phase == wire.PHASE_TOKEN and self.costs:
+            if (i, rec.step, "cost") not in self.withheld:
+                self._answer(i, wire.encode_send(wire.PHASE_COST, Message(i, rec.step, np.zeros(2),
+                                                                          np.full(self.costs, i, np.float32))))
+        elif isinstance(rec, wire.Delivery) and rec.phase == (wire.PHASE_COST if self.costs else wire.PHASE_TOKEN) \
+                and (i, rec.step, "command") not in self.withheld:
             self._answer(i, wire.encode_command(i, rec.step, self.command(i, rec.step)))
 
     def receive(self, timeout_s: float):
@@ -68,7 +74,7 @@ class Log:
 
 
 def _world(stand_ins: StandIns, rate_hz: float, log: Log) -> World:
-    w = World(scenario(), stand_ins, 34, rate_hz=rate_hz, log=log)
+    w = World(scenario(), stand_ins, 34, rate_hz=rate_hz, log=log, costs=stand_ins.costs)
     w.robots, w.t0 = stand_ins, time.perf_counter()
     return w
 
@@ -101,3 +107,24 @@ def test_with_no_command_in_time_no_robot_moves():
         w.step(k)
     assert w.cost == [1.0] * 6 and all(not u.any() for u, _ in log.applied.values())
     assert w.summary([0] * 4)["deadline_misses"] == 20 and (w.misses == 5).all()
+
+
+def test_the_cost_round_reaches_who_heard_the_beacon_and_a_late_cost_is_lost():
+    """With a ``_joint`` rule's cost round (K = 4): each robot's cost DELIVER holds the costs of exactly
+    the robots whose beacons it was delivered that step and whose costs came in time; a cost message
+    that misses its phase is lost and counted as a miss of the cost phase."""
+    n = 4
+    robots = StandIns(n, withheld={(2, 1, "cost")}, costs=4)
+    w = _world(robots, 2.0, Log())
+    for k in range(3):
+        w.step(k)
+    got = {(i, rec.step): rec for i, name, rec in robots.sent if name == "costs"}
+    beacons = {(i, rec.step): {m.sender for m in rec.messages} for i, name, rec in robots.sent if name == "beacons"}
+    assert len(got) == 3 * n and any(beacons.values())
+    for (i, k), rec in got.items():
+        want = beacons[i, k] - ({2} if k == 1 else set())
+        assert [m.sender for m in rec.messages] == sorted(want)
+        assert all(np.array_equal(m.token, np.full(4, m.sender, np.float32)) for m in rec.messages)
+    s = w.summary([0] * n)
+    assert s["robots"][2]["misses_by_phase"] == {"beacon": 0, "token": 0, "cost": 1, "command": 0}
+    assert s["messages"]["cost"]["sent"] == 3 * n - 1
