@@ -44,7 +44,7 @@ PAPER_LATENCY_S = 0.36
 #: Default sweep: {sampler: S values}; DDIM-50 (the paper's sampler) is the baseline.
 DEFAULT_GRID = {"dpm++": (3, 5, 10, 20), "ddim": (10, 20, 50)}
 BASELINE = ("ddim", 50)
-#: The standard error the issue asks the S* comparison to reach (more environments lower it as 1/sqrt(n)).
+#: The standard error the S* comparison aims for (more environments lower it as 1/sqrt(n)).
 SE_TARGET = 0.02
 
 
