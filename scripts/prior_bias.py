@@ -26,22 +26,10 @@ from madp.policies import SamplingSettings
 from madp.policies.checkpoint import load_map_prior
 from madp.policies.madp import noise_generator
 from madp.sim import CoverageEnv, Scenario, SimParams
-from madp.sim.rollout import Hook, run
-from madp.training.map_prior import explore_mean, window_examples
+from madp.sim.rollout import run
+from madp.training.map_prior import WindowHook, explore_mean
 
 RANGES = ((0, 20), (20, 60), (60, None))
-
-
-class _Windows(Hook):
-    def __init__(self, every: int):
-        self.every, self.parts = every, []  # (step, inputs, targets, weights)
-
-    def start(self, envs):
-        self.stepped(0, envs)
-
-    def stepped(self, t, envs):
-        if t % self.every == 0:
-            self.parts += [(t, *window_examples(env)) for env in envs]
 
 
 def main() -> None:
@@ -65,13 +53,13 @@ def main() -> None:
         envs = [CoverageEnv(Scenario.random(scenario_seed(args.seed, "train", 0, i), params, LAUNCHES[layout]))
                 for i in range(args.envs)]
         gens = [noise_generator(e.scenario.seed) for e in envs]
-        hook = _Windows(20)
+        hook = WindowHook(20)
         run(envs, lambda es: ctrl.act_batch(es, gens), [hook], steps=args.steps)
         for lo, hi in RANGES:
             parts = [p for p in hook.parts if p[0] >= lo and (hi is None or p[0] < hi)]
             if not parts:
                 continue
-            x, y, w = (torch.from_numpy(np.concatenate([p[k] for p in parts]).astype(np.float32)) for k in (1, 2, 3))
+            x, y, w = (torch.from_numpy(np.concatenate([p[2][k] for p in parts]).astype(np.float32)) for k in (0, 1, 2))
             preds = {"explore's mean": explore_mean(x)}
             with torch.no_grad():
                 preds.update({path: torch.cat([prior(c) for c in x.split(4096)]) for path, prior in priors.items()})

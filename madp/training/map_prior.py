@@ -42,7 +42,7 @@ from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.launch import TRAINING_LAUNCHES, draw_launch
 from madp.sim.rollout import Hook, run
 
-__all__ = ["collect", "expectile_loss", "explore_mean", "train", "window_examples"]
+__all__ = ["WindowHook", "collect", "expectile_loss", "explore_mean", "train", "window_examples"]
 
 #: Format version of the examples file.
 FORMAT = 1
@@ -56,7 +56,10 @@ def window_examples(env: CoverageEnv) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return x, y, np.clip(x[:, 2] - x[:, 1], 0.0, 1.0)
 
 
-class _Examples(Hook):
+class WindowHook(Hook):
+    """A rollout hook that keeps, every ``every`` steps from step 0, each environment's
+    :func:`window_examples` in ``parts`` as ``(step, environment index, (inputs, targets, weights))``."""
+
     def __init__(self, every: int):
         self.every, self.parts = every, []
 
@@ -66,7 +69,7 @@ class _Examples(Hook):
     def stepped(self, t, envs):
         if t % self.every == 0:
             for b, env in enumerate(envs):
-                self.parts.append((b, window_examples(env)))
+                self.parts.append((t, b, window_examples(env)))
 
 
 def _scenario(seed: int, index: int, params: SimParams) -> Scenario:
@@ -105,9 +108,9 @@ def collect(out: Path, num_envs: int, every: int = 20, steps: int = 600, seed: i
             idx = list(range(lo, min(num_envs, lo + batch)))
             envs = [CoverageEnv(_scenario(seed, i, params)) for i in idx]
             gens = [noise_generator(e.scenario.seed) for e in envs]
-            hook = _Examples(every)
+            hook = WindowHook(every)
             run(envs, lambda es: ctrl.act_batch(es, gens), [hook], steps=steps)
-            for b, (x, y, w) in hook.parts:
+            for _, b, (x, y, w) in hook.parts:
                 xs.append(x), ys.append(y), ws.append(w), env_ids.append(np.full(len(x), idx[b], np.int32))
             bar.advance(task, len(idx))
     meta = {"format": FORMAT, "num_envs": num_envs, "every": every, "steps": steps, "seed": seed,
@@ -184,7 +187,7 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
     xt, yt, wt = x[tr], y[tr], w[tr]
 
     def score(pred, yy, ww):
-        return float(((pred - yy) ** 2 * ww).sum() / ww.sum().clamp(min=1e-9))
+        return float(expectile_loss(pred, yy, ww, 0.5))
 
     def bias(pred, yy, ww):
         return float(((pred - yy) * ww).sum() / ww.sum().clamp(min=1e-9))
