@@ -421,7 +421,8 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                   TextColumn("ETA"), TimeRemainingColumn(), disable=not progress) as bar:
         task = bar.add_task(suite, total=total, completed=total - pending)
         if cfg.ray is not None and tasks:
-            for n in ray_imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec, filmed) for c, es, rec in tasks], cfg.ray):
+            for n in ray_imap_unordered(_worker, [(cfg, c, es, str(suite_dir.absolute()), rec, filmed) for c, es, rec in tasks],
+                                        cfg.ray):
                 bar.advance(task, n)
             remove_temps(suite_dir)  # what a worker killed mid-job left (Ray ran its task again)
         elif workers == 1:
