@@ -236,3 +236,10 @@ def test_every_guide_opens_with_a_runnable_block_and_holds_no_history(guide):
     assert any(line.startswith("## ") for line in lines), f"{guide.name}: no H2 section"
     dates = [d for d in re.findall(r"\b20\d\d-\d\d-\d\d\b", re.sub(r"\]\([^)]*\)", "]", text))]
     assert not dates, f"{guide.name}: dated history {dates}; it belongs to a report or CHANGELOG.md"
+
+
+@pytest.mark.parametrize("page", sorted((DOCS / "concepts").glob("*.md")), ids=lambda p: p.name)
+def test_every_concept_page_is_in_sections(page):
+    """A concept page is read by its parts: at least two H2 sections."""
+    sections = [line for line in page.read_text(encoding="utf-8").splitlines() if line.startswith("## ")]
+    assert len(sections) >= 2, f"{page.name}: {len(sections)} H2 sections"

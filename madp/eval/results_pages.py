@@ -49,7 +49,8 @@ __all__ = ["BLOCKS", "KEPT_FILE", "Kept", "load_kept", "render", "replace_blocks
 #: The file of a results folder that names the kept runs.
 KEPT_FILE = "kept.json"
 #: The names of the blocks :func:`render` writes.
-BLOCKS = ("headline", "default", "cities", "options", "provenance", "network", "network-detail")
+BLOCKS = ("headline", "default", "cities", "options", "provenance", "network", "network-detail", "network-default",
+          "step-time")
 #: The suite whose groups are networks, not scenarios: the ``network`` blocks tabulate it, paired
 #: against its ideal group, and the scenario tables leave it out.
 NETWORK_SUITE = "faults"
@@ -316,11 +317,14 @@ def _controllers_of(kept: Kept, rel: str) -> list[str]:
 
 def render(kept: Kept) -> dict[str, str]:
     """Every block of :data:`BLOCKS` as Markdown (no trailing newline)."""
+    from .results_notes import network_default_note, step_time_table
+
     summaries = _summaries(kept)
     network, network_detail = network_tables(kept)
     return {"headline": headline(summaries), "default": default_table(summaries), "cities": cities_table(summaries),
             "options": options_table(kept), "provenance": provenance_table(kept), "network": network,
-            "network-detail": network_detail}
+            "network-detail": network_detail, "network-default": network_default_note(kept, NETWORK_SUITE),
+            "step-time": step_time_table(kept)}
 
 
 # --------------------------------------------------------------------------------------------------
