@@ -82,6 +82,9 @@ def check_command_line(args: list[str]) -> list[str]:
     while hasattr(cmd, "commands") and rest and rest[0] in cmd.commands:
         path.append(rest[0])
         cmd = cmd.commands[rest.pop(0)]
+    group_options = {o for p in getattr(cmd, "params", []) for o in getattr(p, "opts", [])}
+    if hasattr(cmd, "commands") and rest and set(rest) <= group_options:  # a group's own option: madp --version
+        return problems
     if hasattr(cmd, "commands") and not getattr(cmd, "invoke_without_command", False):
         problems.append(f"{' '.join(path)}: expected one of {sorted(cmd.commands)}, got {rest[:1]}")
         return problems
@@ -115,7 +118,7 @@ def test_every_documented_command_line_exists_in_the_cli():
 def test_the_command_line_check_finds_what_does_not_exist():
     text = "```bash\nmadp eval --suite uniform --no-such-option 3   # a comment --nor-this\n" \
            "madp evaluate --suite x && .venv/bin/madp eval compare a b --baseline a\n" \
-           "python -m madp.cli dataset\n```\n"
+           "python -m madp.cli dataset\nmadp --version && madp --verbose\n```\n"
     found = [madp_invocation(w) for w in shell_commands(text)]
     commands = sorted(typer.main.get_command(app).commands)
     assert {"datagen", "dataset", "eval", "train"} <= set(commands)
@@ -124,6 +127,8 @@ def test_the_command_line_check_finds_what_does_not_exist():
         [f"madp: expected one of {commands}, got ['evaluate']"],
         [],
         ["madp dataset: expected one of ['convert', 'import', 'info', 'merge', 'verify'], got []"],
+        [],
+        [f"madp: expected one of {commands}, got ['--verbose']"],
     ]
 
 

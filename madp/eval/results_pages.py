@@ -324,7 +324,7 @@ def render(kept: Kept) -> dict[str, str]:
     return {"headline": headline(summaries), "default": default_table(summaries), "cities": cities_table(summaries),
             "options": options_table(kept), "provenance": provenance_table(kept), "network": network,
             "network-detail": network_detail, "network-default": network_default_note(kept, NETWORK_SUITE),
-            "step-time": step_time_table(kept)}
+            "step-time": step_time_table(kept, summaries)}
 
 
 # --------------------------------------------------------------------------------------------------
