@@ -191,6 +191,7 @@ def eval_cmd(
     ctx: typer.Context,
     suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
+    paired_se: Optional[float] = typer.Option(None, help="Run each suite's first environments, as many (at most --num-envs) as a paired difference of MADP needs for this standard error (e.g. 0.01; docs/guides/evaluation.md)."),
     groups: Optional[str] = typer.Option(None, help="Run only these groups of the suite, comma-separated (e.g. N32_F128 of scale, line of launch); default: all."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint); KIND:NAME=PATH adds a learned controller with its own checkpoint, e.g. madp:r4=runs/r4/policy.safetensors (shown as madp:r4)."),
@@ -233,7 +234,7 @@ def eval_cmd(
                      madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
                      named=tuple(named.items()), groups=tuple(g.strip() for g in groups.split(",")) if groups else (),
-                     runtime=runtime)
+                     runtime=runtime, paired_se=paired_se)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)

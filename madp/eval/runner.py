@@ -85,6 +85,7 @@ class EvalConfig:
     device: str = "cpu"  # where the learned controllers' models run ("cpu", "cuda", "cuda:I")
     groups: tuple[str, ...] = ()  # run only these groups of the suite (empty: all)
     runtime: str = "torch"  # RUNTIMES: "onnx" runs decentralized MADP through madp.robot (madp.export.swarm)
+    paired_se: float | None = None  # run each suite's first environments for this SE of a paired difference
 
     def __post_init__(self) -> None:
         if self.runtime not in RUNTIMES:
@@ -357,7 +358,14 @@ def _read_config(cfg_file: Path) -> dict | None:
 
 
 def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bool = True) -> dict:
-    """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
+    """Run (or resume) one suite and write its tables and plots. Returns the report's summary. With
+    ``cfg.paired_se`` the suite's first environments per group, as many as that standard error of a
+    paired difference needs (:func:`madp.eval.paired_se.envs_for_se`, at most ``cfg.num_envs``)."""
+    if cfg.paired_se is not None:
+        from .paired_se import envs_for_se
+
+        groups = len(cfg.groups) or len({e.group for e in suite_envs(suite, 1, cfg.cities)})
+        cfg = replace(cfg, num_envs=envs_for_se(suite, cfg.paired_se, groups, cfg.num_envs))
     envs = only_groups(suite_envs(suite, cfg.num_envs, cfg.cities), cfg.groups)
     suite_dir = Path(cfg.out) / suite
     with locked_dir(suite_dir):
