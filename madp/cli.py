@@ -1,6 +1,6 @@
 """``madp``: the command line. Thin commands: each parses its options, calls one function of the
 layers and prints the result. A user's mistake ends in one line ``madp: error: …`` naming the flag or
-file (exit status 2), a bug in its traceback and a request for a report (exit status 1): :mod:`madp.cli_main`.
+file (exit status 2), a bug in its traceback and a request for a report (exit status 1): :mod:`madp.commands.main`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import List, Optional, Tuple
 
 import typer
 
-from madp.cli_main import ray_option
+from madp.commands.main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
@@ -50,7 +50,7 @@ def rollout(
     runtime: str = typer.Option("torch", help="How MADP (decentralized) runs: torch (the PyTorch policy) | onnx (every robot through the files of madp export and the torch-free robot runtime, each robot's starting noise its own, as a robot process draws it: the one-process reference of madp swarm; docs/guides/export.md)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
-    from madp.cli_rollout import run_rollout
+    from madp.commands.rollout import run_rollout
 
     run_rollout(scenario, controller, checkpoint, seed, steps, out, video, device, select, candidates, network, record,
                 record_format, runtime)
@@ -290,7 +290,7 @@ def scenario_import_cmd(
     peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range."),
 ) -> None:
     """Turn traffic-signal locations into a scenario file (the 1024 m square with the most signals)."""
-    from madp.eval.cities import city_scenario
+    from madp.cities.importer import city_scenario
     from madp.sim import SimParams
 
     sc, src = city_scenario(source, seed, SimParams(num_robots=num_robots, sigma_range_m=sigma, peak_range=peak))
@@ -301,11 +301,11 @@ def scenario_import_cmd(
 
 def _add_commands() -> None:
     """The commands kept in modules of their own, so this one stays small."""
-    from madp.cli_bench import bench_app  # the benchmark commands (madp bench ...)
-    from madp.cli_data import dataset_import_cmd  # madp dataset import: a run's log back into data
-    from madp.cli_report import report_cmd  # madp eval report: the documentation's results tables
-    from madp.cli_swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
-    from madp.cli_value import value_app  # madp value: the value rule's learned map prior
+    from madp.commands.bench import bench_app  # the benchmark commands (madp bench ...)
+    from madp.commands.data import dataset_import_cmd  # madp dataset import: a run's log back into data
+    from madp.commands.report import report_cmd  # madp eval report: the documentation's results tables
+    from madp.commands.swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
+    from madp.commands.value import value_app  # madp value: the value rule's learned map prior
     app.add_typer(bench_app, name="bench")
     app.add_typer(value_app, name="value")
     dataset_app.command("import")(dataset_import_cmd)
@@ -317,9 +317,9 @@ _add_commands()
 
 
 def main(argv: Optional[List[str]] = None) -> None:
-    """Entry point (:func:`madp.cli_main.run`): a user's mistake is one line, exit status 2; a bug its
+    """Entry point (:func:`madp.commands.main.run`): a user's mistake is one line, exit status 2; a bug its
     traceback and a request to report it, exit status 1."""
-    from madp.cli_main import run
+    from madp.commands.main import run
 
     run(app, sys.argv[1:] if argv is None else argv)
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.io.atomic import atomic_path, remove_temps, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
@@ -173,7 +173,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
         hooks.append(frames)
     run([env], act_alone(ctrl), hooks, steps)
     if record:
-        from .record import write_rollout_mcap
+        from madp.recordings.record import write_rollout_mcap
 
         (suite_dir / "rollouts").mkdir(parents=True, exist_ok=True)
         write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{file_stem(controller)}.mcap", env.world_map,
@@ -433,9 +433,9 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                 bar.advance(task, n)
             remove_temps(suite_dir)  # what a worker killed mid-job left (Ray ran its task again)
         elif workers == 1:
-            from madp.models.bench import _threads
+            from madp.models.bench import torch_threads
 
-            with _threads(1):  # one torch thread, as in every pool worker: two evaluations side by side
+            with torch_threads(1):  # one torch thread, as in every pool worker: two evaluations side by side
                 for c, es, rec in tasks:  # do not fight over the cores, and --workers changes no bit
                     bar.advance(task, run_task(cfg, c, es, suite_dir, rec, filmed))
         else:

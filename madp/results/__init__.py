@@ -1,0 +1,1 @@
+"""The documentation's results pages from kept results (``madp eval report``): ``pages.py``."""
