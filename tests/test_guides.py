@@ -64,7 +64,7 @@ def test_the_first_commands_are_found_and_shrunk():
     firsts = {g.name: first_commands(g) for g in GUIDES}
     assert len(firsts) >= 12 and all(firsts.values())
     assert [small(c) for c in firsts["robots.md"]] == [
-        "madp scenario import madp/eval/data/cities/alameda_california.csv --out s.json",
+        "madp scenario import madp/cities/data/alameda_california.csv --out s.json",
         "madp rollout --scenario s.json --controller madp --network loss=0.3,max_age_steps=5 --steps 3 --out r.json"]
     assert small(firsts["datasets.md"][0]) == "madp datagen --workers 1 --n 16 --out data/small"
     assert small(firsts["ray.md"][0]) == "madp datagen --n 16 --out data/ray --ray"  # Ray's workers, not --workers

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from madp.cli_main import optional_ray_value
+from madp.commands.main import optional_ray_value
 from madp.data_schema.dataset import verify_dataset
 from madp.datagen import DatagenConfig, run_datagen
 from madp.io.atomic import is_temp

@@ -32,7 +32,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     rules with the checkpoint's map prior)."""
     import torch
 
-    from madp.models.bench import _threads
+    from madp.models.bench import torch_threads
     from madp.policies import MADPPolicy, SamplingSettings, load, noise_generator, shipped_checkpoint
     from madp.policies.checkpoint import load_map_prior
     from madp.robot.choice import local_views
@@ -79,7 +79,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     policy = MADPPolicy(model, "decentralized", sampling,
                         map_prior=load_map_prior(path) if sampling.select in PRIOR_RULES else None)
     gen = noise_generator(seed)
-    with _threads(1):
+    with torch_threads(1):
         policy.act_batch([env], [gen])
         swarm = []
         for _ in range(repeats):

@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
 from madp.io.lock import locked_dir

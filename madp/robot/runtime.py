@@ -27,7 +27,6 @@ episode's seed, the step and the robot's id (:func:`robot_noise`). Nothing here 
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
@@ -35,6 +34,7 @@ from typing import Callable
 import numpy as np
 
 from madp.errors import InputError, SettingError
+from madp.io.checksum import sha256_file
 from madp.io.jsonfile import read_json
 from .choice import MAP_RULES, LocalViews, local_cell_costs, lone_steps, map_prior, medoid_index, mppi_weights
 from madp.sim.network import Message
@@ -160,14 +160,7 @@ class RobotRuntime:
             raise InputError(f"{spec_file}: no sha256 of each graph (graph_sha256); export again with madp export")
         for role, name in graphs.items():
             path = self.directory / name
-            try:
-                h = hashlib.sha256()
-                with open(path, "rb") as f:
-                    for chunk in iter(lambda: f.read(1 << 20), b""):
-                        h.update(chunk)
-                digest = h.hexdigest()
-            except OSError as e:
-                raise InputError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
+            digest = sha256_file(path)
             if digest != digests[role]:
                 raise InputError(f"{path}: its sha256 differs from the one {spec_file.name} records "
                                  "(an interrupted or mixed export); export again with madp export --overwrite")

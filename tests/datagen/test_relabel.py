@@ -50,7 +50,7 @@ def test_relabelled_bytes_do_not_depend_on_workers(madp_relabelled, tmp_path):
 
 
 def test_manifest_records_policy_beta_and_parent(madp_relabelled):
-    from madp.data_schema.manifest import sha256_file
+    from madp.io.checksum import sha256_file
 
     m, b, first = first_episode(madp_relabelled)
     pol = m.params["policy"]

@@ -12,7 +12,7 @@ import pytest
 from madp.eval.runner import EvalConfig, run_batch, run_job, run_suite
 from madp.eval.suites import suite_envs
 from madp.policies import SamplingSettings
-from tests.eval.test_record import _read
+from tests.recordings.test_record import _read
 
 
 def test_selection_is_named_in_every_output(tmp_path, checkpoints):

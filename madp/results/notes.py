@@ -1,4 +1,4 @@
-"""Two blocks of ``madp eval report`` beside the tables of :mod:`madp.eval.results_pages`:
+"""Two blocks of ``madp eval report`` beside the tables of :mod:`madp.results.pages`:
 
 * ``step-time``: how long a control step takes at the default: the wall times the default's kept runs
   recorded and, where ``kept.json``'s ``bench`` entry (``{"file", "date", "commit", "machine", "command"}``)
@@ -9,16 +9,18 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Callable
 
 from madp.controllers import display_name
 from madp.errors import InputError
 from madp.io.jsonfile import read_json
 
-from .stats import order_controllers
+from madp.eval.stats import order_controllers
 
-if TYPE_CHECKING:
-    from .results_pages import Kept
+#: What these blocks read: a :class:`madp.results.pages.Kept` (this module does not import that one, which
+#: imports it) and its ``runs`` entry of a directory (:func:`madp.results.pages.run_of`).
+Kept = Any
+RunOf = Callable[[dict, str], "dict | None"]
 
 __all__ = ["network_default_note", "run_step_times", "step_time_table"]
 
@@ -42,11 +44,9 @@ def _default_step(bench: dict[str, Any], where: str) -> tuple[dict[str, Any], st
     return entry, f"`{d.select}` among K = {d.candidates}, DPM-Solver++(2M) S = {d.sampling_steps}, frame {d.frame}"
 
 
-def run_step_times(kept: Kept, summaries: dict[str, dict[str, Any]]) -> str:
+def run_step_times(kept: Kept, summaries: dict[str, dict[str, Any]], run_of: RunOf) -> str:
     """Each controller's mean wall time per control step and environment in the default's kept runs, per
     suite, with the dates and commits of the runs it comes from."""
-    from .results_pages import run_of
-
     controllers = order_controllers(c for s in summaries.values() for c in s["controllers"])
     lines = ["| suite | " + " | ".join(map(display_name, controllers)) + " | measured |",
              "| --- " * (len(controllers) + 2) + "|"]
@@ -59,14 +59,14 @@ def run_step_times(kept: Kept, summaries: dict[str, dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def step_time_table(kept: Kept, summaries: dict[str, dict[str, Any]]) -> str:
+def step_time_table(kept: Kept, summaries: dict[str, dict[str, Any]], run_of: RunOf) -> str:
     """How long a control step takes at the default: the kept runs' own wall times
     (:func:`run_step_times`) and, where ``kept.json`` names one, the kept benchmark's swarm and robot
     steps with the command, the machine, the date and the commit."""
     lines = ["`madp eval`'s wall time per control step and environment (ms, mean over the environments) in the "
              "runs above: one thread per worker process, a worker on every core; a learned controller steps 8 "
              "environments at a time, each charged an eighth of the batch's step. It depends on what else the "
-             "machine ran.", "", run_step_times(kept, summaries)]
+             "machine ran.", "", run_step_times(kept, summaries, run_of)]
     spec = kept.spec.get("bench")
     if not spec:
         return "\n".join(lines)

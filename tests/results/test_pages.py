@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 
 from madp.cli import app
 from madp.errors import InputError
-from madp.eval.results_notes import AGREE
-from madp.eval.results_pages import END, load_kept, render, replace_blocks, update_pages
+from madp.results.notes import AGREE
+from madp.results.pages import END, load_kept, render, replace_blocks, update_pages
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", ROOT / "docs"]

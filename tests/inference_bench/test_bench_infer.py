@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from madp.errors import SettingError
-from madp.eval.bench import bench_infer_all, format_table, parse_grid
+from madp.inference_bench.bench import bench_infer_all, format_table, parse_grid
 from tests.test_reliability_errors import assert_one_line, cli
 
 
@@ -86,7 +86,7 @@ def test_eval_on_a_cuda_device_this_machine_lacks_is_one_line(tmp_path):
 def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
     """``--candidates 1,2,2:2``: K = 1 without selection, then every rule at K = 2 at the default S
     (3) and at S = 2 (structure, not speed)."""
-    from madp.eval.bench import bench_select, parse_candidates
+    from madp.inference_bench.bench import bench_select, parse_candidates
 
     assert parse_candidates("16,1,4") == ((1, None), (4, None), (16, None))
     assert parse_candidates("8,4:3") == ((4, 3), (8, None))

@@ -40,9 +40,9 @@ from madp.controllers import ORACLES, SAMPLING, display_name, split_name
 from madp.errors import InputError
 from madp.io.jsonfile import read_json
 
-from .paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
-from .stats import CONFIDENCE, natural_key, order_controllers, order_groups, paired_stats, summarize
-from .tables import ALL_ROW, SAMPLER_NAMES, best_markdown
+from madp.eval.paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
+from madp.eval.stats import CONFIDENCE, natural_key, order_controllers, order_groups, paired_stats, summarize
+from madp.eval.tables import ALL_ROW, SAMPLER_NAMES, best_markdown
 
 __all__ = ["BLOCKS", "KEPT_FILE", "Kept", "load_kept", "render", "replace_blocks", "update_pages"]
 
@@ -74,7 +74,7 @@ class Kept:
 def _read_dir(root: Path, rel: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     import pyarrow.parquet as pq
 
-    from .compare import load_run
+    from madp.eval.compare import load_run
 
     run = load_run(root / rel)  # one suite, finite costs, every controller on every environment
     schema = pq.read_schema(root / rel / "results.parquet")
@@ -291,7 +291,7 @@ def network_tables(kept: Kept) -> tuple[str, str]:
     each group's mean, the survivors' reference, bytes on the air, environments that end above J(0))."""
     if NETWORK_SUITE not in kept.default:
         return (f"No kept `{NETWORK_SUITE}` results.",) * 2
-    from .faults import faults_sections
+    from madp.eval.faults import faults_sections
 
     cols = kept.default[NETWORK_SUITE]
     controllers = order_controllers(cols["controller"].tolist())
@@ -317,14 +317,14 @@ def _controllers_of(kept: Kept, rel: str) -> list[str]:
 
 def render(kept: Kept) -> dict[str, str]:
     """Every block of :data:`BLOCKS` as Markdown (no trailing newline)."""
-    from .results_notes import network_default_note, step_time_table
+    from .notes import network_default_note, step_time_table
 
     summaries = _summaries(kept)
     network, network_detail = network_tables(kept)
     return {"headline": headline(summaries), "default": default_table(summaries), "cities": cities_table(summaries),
             "options": options_table(kept), "provenance": provenance_table(kept), "network": network,
             "network-detail": network_detail, "network-default": network_default_note(kept, NETWORK_SUITE),
-            "step-time": step_time_table(kept, summaries)}
+            "step-time": step_time_table(kept, summaries, run_of)}
 
 
 # --------------------------------------------------------------------------------------------------

@@ -56,7 +56,7 @@ import numpy as np
 import torch
 
 from madp.errors import SettingError
-from madp.models.bench import _threads, _timed, matmul_flops_per_s
+from madp.models.bench import torch_threads, timed, matmul_flops_per_s
 
 #: The parts of a control step, in table order; :data:`MODEL_PARTS` run in torch (on ``device``).
 PARTS = ("observations", "perception", "masks", "encoder", "denoiser", "selection")
@@ -203,7 +203,7 @@ def measure_peaks(cfg, device: str = "cpu", rows: int = 2048, square: int | None
         out[f"peak_{dtype}"] = max(x["flops_per_s"] for x in out["matmul"] if x["dtype"] == dtype)
     a = torch.empty(16 << 20, device=device)
     b = torch.empty_like(a)
-    out["copy_bytes_per_s"] = 2 * a.numel() * F32 / statistics.median(_timed(lambda: b.copy_(a), 2, 10, device))
+    out["copy_bytes_per_s"] = 2 * a.numel() * F32 / statistics.median(timed(lambda: b.copy_(a), 2, 10, device))
     out["ridge_flop_per_byte"] = out["peak_float32"] / out["copy_bytes_per_s"]
     return out
 
@@ -272,7 +272,7 @@ def _load() -> float | None:
 def _median_s(fn, repeats: int, device: str, bf16: bool = False) -> float:
     dev = torch.device(device).type
     with torch.inference_mode(), torch.autocast(dev, dtype=torch.bfloat16, enabled=bf16):
-        return statistics.median(_timed(fn, 1, repeats, device))
+        return statistics.median(timed(fn, 1, repeats, device))
 
 
 def _rate(flops: int, time_s: float, peak: float) -> dict:
@@ -355,7 +355,7 @@ def roofline(checkpoint: str | None = None, after_steps: int = 300, repeats: int
     sampling = SamplingSettings()
     load_before = _load()
     devices = ["cpu"] + ([device] if torch.device(device).type != "cpu" else [])
-    with _threads(threads):
+    with torch_threads(threads):
         before = {d: measure_peaks(model.config, d, square=square) for d in devices}
         states = [{"state": name, **measure_state(model, env, sampling, repeats, device)}
                   for name, env in roofline_states(after_steps, index)]
