@@ -61,7 +61,8 @@ def test_lockstep_swarm_equals_the_one_process_reference(lockstep):
     assert len(s["cost"]) == STEPS + 1 and np.abs(np.array(s["cost"]) - ref).max() <= 1e-6
     assert s["final_cost"] == s["cost"][-1] < 1.0 and s["mode"] == "lockstep" and s["failed"] == []
     on_disk = json.loads((lockstep["out"] / "summary.json").read_text())
-    assert on_disk["cost"] == s["cost"] and sorted(p.name for p in lockstep["out"].iterdir()) == ["summary.json", "swarm.mcap"]
+    assert on_disk["cost"] == s["cost"] and sorted(p.name for p in lockstep["out"].iterdir()) == ["madp-swarm.json", "summary.json", "swarm.mcap"]
+    assert s["outcome"] == "completed" and s["dropped"] == {"forged": 0, "malformed": 0, "foreign": 0}
     for r in s["robots"]:
         assert r["deadline_misses"] == 0 and r["failed_at_step"] is None and r["exit"] == "exit status 0"
         assert r["latency_ms"]["count"] == STEPS and 0 < r["latency_ms"]["p50"] <= r["latency_ms"]["p99"]
