@@ -194,6 +194,6 @@ def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | P
         }
         write_json_atomic(out / "summary.json", summary)
     if done < steps:
-        raise MadpError(f"the swarm ended at step {done} of {steps}: {outcome} (the run does not score; "
+        raise MadpError(f"the swarm ended after {done} of {steps} steps, {outcome} (the run does not score; "
                         f"{out / 'summary.json'} says which robot failed when and why)")
     return summary
