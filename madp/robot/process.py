@@ -74,13 +74,13 @@ def _parser() -> argparse.ArgumentParser:
 
 class RobotLink:
     """Robot ``robot``'s Zenoh session, logged in with ``key`` (its key of the run): a subscription to its
-    own ``in`` keys, feeding a queue of the records whose seal is its key's (:attr:`dropped` counts the
-    others), and one publisher per ``out`` key (reliable, blocking when congested, sent at once)."""
+    own ``in`` keys, feeding a queue of the records whose seal is its key's (others are dropped), and
+    one publisher per ``out`` key (reliable, blocking when congested, sent at once)."""
 
     def __init__(self, endpoint: str, run_key: str, robot: int, key: bytes):
         import zenoh
 
-        self.robot, self.key, self.run_key, self.dropped = int(robot), key, run_key, 0
+        self.robot, self.key, self.run_key = int(robot), key, run_key
         login = (transport_user(self.robot), transport_password(key))
         self.session = zenoh.open(zenoh_config(connect=endpoint, login=login))
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
@@ -91,9 +91,7 @@ class RobotLink:
 
     def _arrived(self, sample) -> None:
         record = unseal(self.key, str(sample.key_expr), sample.payload.to_bytes())
-        if record is None:
-            self.dropped += 1
-        else:
+        if record is not None:
             self.inbox.put(record)
 
     def send(self, name: str, data: bytes) -> None:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import os
 import secrets
 import stat
 import sys
@@ -97,10 +96,3 @@ def read_key(source: str) -> bytes:
     if len(key) != KEY_BYTES:
         raise InputError(f"{where}: expected the robot's key as {2 * KEY_BYTES} hex digits")
     return key
-
-
-def write_key(path: str | os.PathLike, key: bytes) -> None:
-    """Write ``key`` as one line of hex to ``path``, created readable by its owner alone."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w") as f:
-        f.write(key.hex() + "\n")

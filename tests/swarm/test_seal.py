@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import struct
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from madp.errors import InputError, SettingError
 from madp.robot import wire
 from madp.robot.process import own_step
-from madp.robot.seal import new_secret, read_key, robot_key, seal, unseal, write_key
+from madp.robot.seal import new_secret, read_key, robot_key, seal, unseal
 from madp.sim import Scenario, SimParams
 from madp.sim.network import Message
 from madp.swarm.robots import ROBOT_MB, ROBOTS_PER_CORE, check_capacity
@@ -45,7 +46,9 @@ def test_a_robots_key_comes_from_stdin_or_a_file_only_its_owner_reads(tmp_path, 
     key = robot_key(new_secret(), 2)
     monkeypatch.setattr("sys.stdin", io.StringIO(key.hex() + "\n"))
     assert read_key("-") == key
-    write_key(tmp_path / "k", key)
+    fd = os.open(tmp_path / "k", os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    os.write(fd, key.hex().encode() + b"\n")
+    os.close(fd)
     assert read_key(str(tmp_path / "k")) == key and (tmp_path / "k").stat().st_mode & 0o777 == 0o600
     (tmp_path / "k").chmod(0o644)
     with pytest.raises(InputError, match="chmod 600"):
