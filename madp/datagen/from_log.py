@@ -5,7 +5,10 @@ in the dataset format, so a run's log feeds the next training round (``madp data
 A log is replayed, not trusted: the scenario from its ``madp`` metadata is rebuilt, the commands the
 world applied (``/robot_<i>/cmd_vel``) drive a :class:`madp.sim.CoverageEnv` step by step, and every
 robot's replayed position must match its logged pose (``/robot_<i>/pose``) to within
-:data:`POSE_TOLERANCE_M`: a log that does not replay is refused, naming the robot and the step.
+:data:`POSE_TOLERANCE_M`: a log that does not replay is refused, naming the robot and the step. A
+robot that failed during the run has no command from its failure on: the import keeps the steps
+before the first failure, in which every robot ran. A log whose poses do not reach the step count its
+metadata gives is refused; nothing is allocated by that count before the messages are read.
 Every ``record_every``-th state (and the last) becomes a sample: the clairvoyant expert's action U0 at
 that state (the label, as in relabelling datagen), the positions X and the observations O of the
 robots' true state. Each log is one episode; the whole import goes to one split (``train`` by default:
@@ -82,34 +85,58 @@ def read_log(path: str | Path) -> RunLog:
         n, steps = len(scenario.robots_m), int(info["steps"])
         if steps < 2:
             raise DataError.at(path, f"a log of {steps} step(s); importing needs at least 2")
-        commands = np.full((steps, n, 2), np.nan)
-        poses = np.full((steps + 1, n, 2), np.nan)
+        found = {"cmd_vel": [], "pose": []}  # (t, i, x, y) as logged: memory as the file's, never as its metadata says
         for m in read_ros2_messages(str(path)):
             topic, msg = m.channel.topic, m.ros_msg
             i = _topic_index(topic, "cmd_vel")
             if i is not None and i < n:
                 t = _step(msg.header.stamp, dt_s)
                 if 0 <= t < steps:
-                    commands[t, i] = msg.twist.linear.x, msg.twist.linear.y
+                    found["cmd_vel"].append((t, i, msg.twist.linear.x, msg.twist.linear.y))
                 continue
             i = _topic_index(topic, "pose")
             if i is not None and i < n:
                 t = _step(msg.header.stamp, dt_s)
                 if 0 <= t <= steps:
-                    poses[t, i] = msg.pose.position.x, msg.pose.position.y
+                    found["pose"].append((t, i, msg.pose.position.x, msg.pose.position.y))
     except DataError:
         raise
     except (json.JSONDecodeError, KeyError, ValueError, TypeError) as e:
         raise DataError.at(path, f"malformed madp metadata ({type(e).__name__}: {e})") from None
     except Exception as e:  # the MCAP readers' own errors for a truncated or foreign file
         raise DataError.corrupt(path, "rosbag2 MCAP", e) from None
-    for name, arr in (("cmd_vel", commands), ("pose", poses)):
-        missing = np.argwhere(np.isnan(arr).any(-1))
-        if len(missing):
-            t, i = (int(v) for v in missing[0])
-            raise DataError.at(path, f"/robot_{i}/{name} has no message for step {t} "
-                               f"(a log of {steps} steps and {n} robots needs one per robot and step)")
+    last = max((t for t, *_ in found["pose"]), default=-1)
+    if last != steps:
+        raise DataError.at(path, f"its madp metadata says {steps} steps, but its poses end at step {last} "
+                           "(a damaged log, or a run that ended before its last step)")
+    commands, poses = _table(found["cmd_vel"], steps, n), _table(found["pose"], steps + 1, n)
+    missing = np.argwhere(np.isnan(poses).any(-1))
+    if len(missing):
+        t, i = (int(v) for v in missing[0])
+        raise DataError.at(path, f"/robot_{i}/pose has no message for step {t} "
+                           f"(a log of {steps} steps and {n} robots needs one per robot and step)")
+    lived = _lived(commands)
+    if lived < 2:
+        t, i = (int(v) for v in np.argwhere(np.isnan(commands).any(-1))[0])
+        raise DataError.at(path, f"/robot_{i}/cmd_vel has no message from step {t} (the robot failed there): "
+                           "fewer than 2 steps in which every robot ran, nothing to import")
+    commands, poses = commands[:lived], poses[:lived + 1]  # the steps every robot lived
     return RunLog(path, scenario, dt_s, commands, poses)
+
+
+def _table(rows: list[tuple], steps: int, n: int) -> np.ndarray:
+    """``[steps, n, 2]`` of the logged ``(t, i, x, y)`` rows; NaN where none was logged."""
+    out = np.full((steps, n, 2), np.nan)
+    if rows:
+        a = np.array(rows, np.float64)
+        out[a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)] = a[:, 2:]
+    return out
+
+
+def _lived(commands_mps: np.ndarray) -> int:
+    """The steps before the first one at which a robot has no command (it failed): every step when none."""
+    gaps = np.flatnonzero(np.isnan(commands_mps).any((1, 2)))
+    return int(gaps[0]) if len(gaps) else len(commands_mps)
 
 
 def _step(stamp, dt_s: float) -> int:

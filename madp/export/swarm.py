@@ -12,7 +12,8 @@ gets the cost messages of the robots whose positions it holds (the simulator's c
   one ``[K, N, 2]`` draw per environment and step from the episode's generator), so a suite run both
   ways differs only by what the runtime computes;
 * ``robot`` (``madp rollout --runtime onnx``): each robot's own, :func:`madp.robot.robot_noise` of the
-  episode's seed, the step and the robot's id, what a robot process draws
+  swarm's shared seed (:func:`madp.swarm.world.shared_seed`: frames too), the step and the robot's id,
+  what a robot process draws
   (:class:`madp.robot.RobotAgent`), so a swarm of robot processes can be checked against this one
   process.
 """
@@ -34,6 +35,7 @@ from madp.policies.madp import SamplingSettings, noise_generator
 from madp.robot.choice import local_views
 from madp.robot import RobotRuntime
 from madp.sim.network import Message
+from madp.swarm.world import shared_seed
 
 from .onnx import export_policy
 
@@ -80,6 +82,7 @@ class OnnxMADPPolicy:
 
     def reset(self, seed: int) -> None:
         self.seed = int(seed)
+        self._shared: tuple = (None, 0)  # (scenario, its shared seed)
         self.generator = noise_generator(seed)
 
     def act(self, env, noise: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -88,6 +91,8 @@ class OnnxMADPPolicy:
         ``(actions [N, 2], candidates [K, N, 2])`` m/s."""
         rt = self.runtime
         seed = self.seed if env.scenario.seed is None else env.scenario.seed
+        if noise is None:  # robot noise: the seed a swarm's robots share (madp swarm's START)
+            seed = self._shared_seed(env.scenario)
         obs, pos = env.observations(), env.estimates_m()
         known, held = env.neighbour_view()  # what each robot holds of the others' positions
         views = rt.view(env.maps, local_views(env)) if rt.reads_map else None
@@ -105,6 +110,11 @@ class OnnxMADPPolicy:
             actions = [rt.choose_joint(r, [costs[j] for j in np.flatnonzero(known[i])], np.flatnonzero(known[i]))
                        for i, r in enumerate(results)]
         return np.stack(actions), np.stack([r.candidates_mps for r in results], 1)
+
+    def _shared_seed(self, scenario) -> int:
+        if self._shared[0] is not scenario:
+            self._shared = (scenario, shared_seed(scenario, self.seed))
+        return self._shared[1]
 
     def _noise(self, g: torch.Generator, n: int) -> np.ndarray | None:
         if self.noise == "robot":

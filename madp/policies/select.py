@@ -84,6 +84,8 @@ JOINT_RULES = ("value_joint", "value_explore_joint", "oracle_joint")
 DEFAULT_SELECT = "explore"
 #: K for a rule named without a number of candidates.
 DEFAULT_CANDIDATES = 4
+#: The most candidates per robot: K samples cost K denoiser passes and K × N actions per step.
+MAX_CANDIDATES = 1024
 
 
 def default_candidates(select: str) -> int:
@@ -93,11 +95,13 @@ def default_candidates(select: str) -> int:
 
 def check_selection(select: str, candidates: int) -> None:
     """A one-line :class:`SettingError` unless ``select`` is one of :data:`SELECTS` and ``candidates``
-    K fits it: ``none`` with K = 1, any other rule with K > 1."""
+    K fits it: ``none`` with K = 1, any other rule with 1 < K <= :data:`MAX_CANDIDATES`."""
     if select not in SELECTS:
         raise SettingError("select", f"expected one of {', '.join(SELECTS)}, got {select!r}")
     if isinstance(candidates, bool) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
         raise SettingError("candidates", f"expected a whole number of samples per robot >= 1, got {candidates!r}")
+    if candidates > MAX_CANDIDATES:
+        raise SettingError("candidates", f"expected at most {MAX_CANDIDATES} samples per robot, got {candidates}")
     if select == "none" and candidates > 1:
         raise SettingError("select/candidates", f"{candidates} candidates per robot need a rule to choose among "
                            "them (" + ", ".join(SELECTS[1:]) + "), got select none")

@@ -38,6 +38,7 @@ import numpy as np
 
 from madp.controllers import ORACLES, SAMPLING, display_name, split_name
 from madp.errors import InputError
+from madp.eval.kept_schema import check_kept
 from madp.io.jsonfile import read_json
 
 from madp.eval.paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
@@ -125,9 +126,7 @@ def load_kept(root: str | Path) -> Kept:
     """Read ``root/kept.json`` and every directory it names (:class:`InputError`, naming the file, on a
     missing or malformed one)."""
     root = Path(root)
-    spec = read_json(root / KEPT_FILE, "expected the kept results' index (madp eval report)")
-    if not isinstance(spec, dict) or not isinstance(spec.get("default"), dict) or not spec["default"].get("dirs"):
-        raise InputError(f"{root / KEPT_FILE}: expected an object with default.dirs (a list of suite directories)")
+    spec = check_kept(read_json(root / KEPT_FILE, "expected the kept results' index (madp eval report)"), root / KEPT_FILE)
     configs: dict[str, dict[str, Any]] = {}
     default = _merge(root, spec["default"]["dirs"], "default", configs)
     options = [(opt, _merge(root, opt["dirs"], f"option {opt.get('name')!r}", configs)) for opt in spec.get("options", [])]

@@ -60,10 +60,13 @@ def step_action(export_dir: str, seed: int = 0) -> dict:
     ``{"action_mps": [vx, vy], "rule": selection rule, "seed": seed}``."""
     import numpy as np
 
+    from madp.errors import SettingError
     from madp.robot.agent import RobotAgent, SensorReading
     from madp.robot.runtime import RobotRuntime
     from madp.sim.robot_maps import robot_cells
 
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 1 << 63:
+        raise SettingError("seed", f"expected a whole number from 0 to 2**63 - 1, got {seed!r}")
     runtime = RobotRuntime(export_dir)
     params = runtime.params
     rng = np.random.default_rng(seed)

@@ -9,9 +9,10 @@ arrays raw numpy buffers of a stated length. ``u32``/``u64`` unsigned, ``i32``/`
 kind       direction          fields after (version, kind)
 =========  =================  ================================================================================
 HELLO 1    robot -> world     robot u32, pid u32 (sent every :data:`HELLO_INTERVAL_S` until START arrives)
-START 2    world -> robot     robot u32, seed u64, max_age i32 (-1: no limit), flags u8 (bit 0: its position
-                              estimates are exact), n u32, n bytes of UTF-8 JSON: the scenario's
-                              :class:`madp.sim.SimParams` (``SimParams.to_dict``)
+START 2    world -> robot     robot u32, seed u64 (the swarm's shared seed, not the scenario's), max_age i32
+                              (-1: no limit), flags u8 (bit 0: its position estimates are exact), n u32, n bytes
+                              of UTF-8 JSON: the :class:`madp.sim.SimParams` fields of :data:`ROBOT_PARAMS`
+                              (its sensor, its radio's range, its motion: :func:`robot_params`)
 READY 3    robot -> world     robot u32 (its agent is built: the startup barrier)
 STEP 4     world -> robot     flags u8 (bit 0: stop), robot u32, step u64, position_m f64[2] (its estimate),
                               lo_cell i64[2], s u32, values f32[s * s] (its sensor's reading, indexed [x, y])
@@ -24,19 +25,20 @@ COMMAND 7  robot -> world     robot u32, step u64, action_mps f64[2] (world axes
 
 :func:`decode` never raises: bytes that are not one whole record of this version (too short, too long,
 an unknown kind, sizes beyond :data:`MAX_SIDE` / :data:`MAX_TOKEN` / :data:`MAX_COUNT`, a non-finite
-position, reading or action, bad UTF-8 or JSON) decode to None, so no packet can stop a process. A
-delivered message's token may still be anything the sender put there: :func:`madp.robot.read_inbox`
-checks it.
+position, reading, token, cost or action, bad UTF-8 or JSON) decode to None, so no packet can stop a
+process. On the middleware every record is sealed with its robot's key (:mod:`madp.robot.seal`).
 
 The cost phase is the round of the ``_joint`` selection rules (:data:`madp.robot.runtime.JOINT_RULES`)
 only: each robot's K costs of its candidates' copies, sent after it sampled and before its command.
 
 Keys (``RUN`` a run's key, ``I`` a robot's id): the world publishes to ``madp/RUN/robot/I/in/<name>``
-(``start``, ``step``, ``beacons``, ``tokens``, ``costs``) and subscribes to ``madp/RUN/robot/*/out/*``;
+(``start``, ``step``, ``beacons``, ``tokens``, ``costs``) and subscribes to each ``madp/RUN/robot/I/out/*``;
 robot I subscribes to ``madp/RUN/robot/I/in/*`` only and publishes to ``madp/RUN/robot/I/out/<name>``
 (``hello``, ``ready``, ``beacon``, ``token``, ``cost``, ``cmd``). Sessions (:func:`zenoh_config`): peer mode,
 multicast and gossip scouting off; the world listens on one loopback endpoint, each robot connects to
-it and listens nowhere, so robots reach each other only through the world's radio.
+it and listens nowhere, so robots reach each other only through the world's radio. A robot logs in
+with its user name and password (:func:`madp.robot.seal.transport_password`); the world's access
+rules let robot I subscribe to its own ``in`` keys and publish on its own ``out`` keys only.
 """
 
 from __future__ import annotations
@@ -53,19 +55,24 @@ from madp.errors import SettingError
 from madp.sim.network import Message
 
 __all__ = ["COMMAND", "Command", "DELIVER", "Delivery", "HELLO", "HELLO_INTERVAL_S", "Hello", "PHASES", "PHASE_BEACON",
-           "PHASE_COST", "PHASE_TOKEN", "READY", "Ready", "SEND", "START", "STEP", "STOP", "Sent", "Start", "StepPacket", "VERSION",
+           "PHASE_COST", "PHASE_TOKEN", "READY", "ROBOT_PARAMS", "Ready", "SEND", "START", "STEP", "STOP", "Sent", "Start", "StepPacket", "VERSION",
            "check_endpoint", "check_run_key", "decode", "encode_command", "encode_delivery", "encode_hello",
            "encode_ready", "encode_send", "encode_start", "encode_step", "encode_stop", "in_key", "out_key", "robot_of",
-           "world_subscription", "zenoh_config"]
+           "robot_params",
+           "zenoh_config"]
 
 #: The record format's version: the first byte of every record.
-VERSION = 1
+VERSION = 2
 HELLO, START, READY, STEP, SEND, DELIVER, COMMAND = 1, 2, 3, 4, 5, 6, 7
 #: The radio's phases of a control step: position beacons, then tokens, then (``_joint`` rules) costs.
 PHASE_BEACON, PHASE_TOKEN, PHASE_COST = 0, 1, 2
 PHASES = ("beacon", "token", "cost")
 #: Largest sensor side s, token size d and number of delivered messages a record may hold.
 MAX_SIDE, MAX_TOKEN, MAX_COUNT = 4096, 65536, 1 << 20
+#: The :class:`madp.sim.SimParams` fields a START carries: what a robot's own sensor, radio and motion
+#: give it (never the fields that, with a seed, rebuild the world's features).
+ROBOT_PARAMS = ("world_size", "comm_radius_m", "sensor_size", "local_map_size", "obs_size", "max_speed_mps", "dt_s",
+                "history_size", "check_oscillations")
 #: Seconds between a starting robot's HELLOs.
 HELLO_INTERVAL_S = 0.2
 #: Flag bit of a STEP record: the world ends the run (the robot exits).
@@ -150,8 +157,14 @@ def encode_hello(robot: int, pid: int) -> bytes:
     return _HELLO.pack(VERSION, HELLO, int(robot), int(pid) & 0xFFFFFFFF)
 
 
+def robot_params(params: dict) -> dict:
+    """The :data:`ROBOT_PARAMS` fields of ``params`` (a ``SimParams.to_dict``)."""
+    return {k: params[k] for k in ROBOT_PARAMS if k in params}
+
+
 def encode_start(robot: int, seed: int, max_age: Optional[int], params: dict, exact_position: bool = True) -> bytes:
-    text = json.dumps(params, sort_keys=True).encode()
+    """A START record: ``params`` cut to :data:`ROBOT_PARAMS` (:func:`robot_params`)."""
+    text = json.dumps(robot_params(params), sort_keys=True).encode()
     age = -1 if max_age is None else int(max_age)
     return _START.pack(VERSION, START, int(robot), int(seed) & _U64, age, int(bool(exact_position)), len(text)) + text
 
@@ -227,7 +240,9 @@ def _decode(buf: memoryview):
         if n != _START.size + length or age < -1 or flags > 1:
             return None
         params = json.loads(bytes(buf[_START.size:]).decode("utf-8"))
-        return Start(robot, seed, None if age < 0 else age, params, bool(flags)) if isinstance(params, dict) else None
+        if not isinstance(params, dict) or not set(params) <= set(ROBOT_PARAMS):
+            return None
+        return Start(robot, seed, None if age < 0 else age, params, bool(flags))
     if kind == STEP and n >= _STEP.size:
         flags, robot, step, px, py, lx, ly, s = _STEP.unpack_from(buf)[2:]
         if s > MAX_SIDE or n != _STEP.size + 4 * s * s or flags & ~STOP or not _finite(px, py):
@@ -238,10 +253,10 @@ def _decode(buf: memoryview):
         return StepPacket(robot, step, np.array([px, py]), np.array([lx, ly], np.int64), values, bool(flags & STOP))
     if kind == SEND and n >= _SEND.size:
         phase, sender, step, px, py, d = _SEND.unpack_from(buf)[2:]
-        if phase >= len(PHASES) or d > MAX_TOKEN or n != _SEND.size + 4 * d:
+        if phase >= len(PHASES) or d > MAX_TOKEN or n != _SEND.size + 4 * d or not _finite(px, py):
             return None
         token = _f32(buf, _SEND.size, d) if phase != PHASE_BEACON else None
-        if phase == PHASE_BEACON and d:
+        if (phase == PHASE_BEACON and d) or (token is not None and not np.isfinite(token).all()):
             return None
         return Sent(phase, Message(sender, step, np.array([px, py]), token))
     if kind == DELIVER and n >= _DELIVER.size:
@@ -252,10 +267,10 @@ def _decode(buf: memoryview):
         for _ in range(count):
             sender, sent, px, py, d = _ITEM.unpack_from(buf, at)
             at += _ITEM.size
-            if d > MAX_TOKEN or n < at + 4 * d:
+            if d > MAX_TOKEN or n < at + 4 * d or not _finite(px, py):
                 return None
             token = _f32(buf, at, d) if phase != PHASE_BEACON else None
-            if phase == PHASE_BEACON and d:
+            if (phase == PHASE_BEACON and d) or (token is not None and not np.isfinite(token).all()):
                 return None
             at += 4 * d
             messages.append(Message(sender, sent, np.array([px, py]), token))
@@ -302,20 +317,18 @@ def out_key(run_key: str, robot: int | str, name: str) -> str:
     return f"madp/{run_key}/robot/{robot}/out/{name}"
 
 
-def world_subscription(run_key: str) -> str:
-    """The world's one subscription: everything every robot of the run sends."""
-    return out_key(run_key, "*", "*")
-
-
 def robot_of(key: str) -> int | None:
     """The robot id of an ``out`` key (None when the key is not one)."""
     parts = str(key).split("/")
     return int(parts[3]) if len(parts) == 6 and parts[3].isdigit() else None
 
 
-def zenoh_config(listen: str | None = None, connect: str | None = None):
+def zenoh_config(listen: str | None = None, connect: str | None = None, login: tuple[str, str] | None = None,
+                 users_file: str | None = None, access: dict | None = None):
     """A Zenoh session's settings: peer mode, no multicast or gossip scouting, listening on ``listen``
-    only (or nowhere) and connecting to ``connect`` only (or nowhere)."""
+    only (or nowhere) and connecting to ``connect`` only (or nowhere). ``login``: the (user, password)
+    it gives the peers it opens; ``users_file``: the ``user:password`` lines of the peers it accepts
+    (no others); ``access``: its ``access_control`` settings."""
     import zenoh
 
     conf = zenoh.Config()
@@ -324,4 +337,11 @@ def zenoh_config(listen: str | None = None, connect: str | None = None):
     conf.insert_json5("scouting/gossip/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps([listen] if listen else []))
     conf.insert_json5("connect/endpoints", json.dumps([connect] if connect else []))
+    if login is not None:
+        conf.insert_json5("transport/auth/usrpwd/user", json.dumps(login[0]))
+        conf.insert_json5("transport/auth/usrpwd/password", json.dumps(login[1]))
+    if users_file is not None:
+        conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(users_file)))
+    if access is not None:
+        conf.insert_json5("access_control", json.dumps(access))
     return conf

@@ -2,9 +2,9 @@
 the robot processes (:mod:`madp.swarm.radio`), driving one robot process per robot over Zenoh.
 
 **Startup** (:meth:`World.connect`, not part of any step's latency): every robot sends HELLO until the
-world answers START (the episode's seed: the scenario's, 0 when it has none; the scenario's parameters;
-the oldest message age its runtime uses: the network's ``max_age``; whether its position estimates are
-exact); when every robot has sent READY, step 0 begins. A robot that ends during startup, or does not
+world answers START (the swarm's shared seed, :func:`shared_seed`, never the scenario's; the
+parameters of its sensor, radio and motion; the oldest message age its runtime uses: the network's
+``max_age``; whether its position estimates are exact); when every robot has sent READY, step 0 begins. A robot that ends during startup, or does not
 connect within :data:`STARTUP_S` + :data:`STARTUP_PER_ROBOT_S` · N seconds, ends the run with a
 one-line error.
 
@@ -36,12 +36,19 @@ of its three messages missed its phase (``deadline_misses``; by phase in ``misse
 Failures: a robot process that has exited (SIGKILL, a crash) is failed from the step at which the
 world sees it gone (:meth:`madp.sim.network.Network.fail`): it no longer moves or is heard, the cost
 counts the others, and the run goes on. ``fail_fraction`` robots of the network fail at ``fail_step``
-as in every rollout; the world sends them the stop packet. The cost J(t)/J(0) counts the running robots
-(with none left, it keeps its last value).
+as in every rollout; the world sends them the stop packet. The cost J(t)/J(0) counts the running robots;
+with none left, :meth:`World.running` is False and the run ends there (it does not score).
+
+What the world drops, never reads and counts per robot (``dropped`` in the summary): ``forged``, a record
+whose seal is not its robot's key (:mod:`madp.swarm.bus`); ``malformed``, one that does not decode
+(junk, a NaN or infinite position, token or cost); ``foreign``, a HELLO, READY or COMMAND naming
+another robot than its key's. None of them changes a run.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 
 import numpy as np
@@ -56,7 +63,7 @@ from madp.sim.voronoi import coverage_cost
 from .radio import CHANNELS, Radio
 from .robots import describe_exit
 
-__all__ = ["BEACON_BY", "COMMAND_BY", "COST_BY", "PHASE_NAMES", "STALL_S", "TOKEN_BY", "World"]
+__all__ = ["BEACON_BY", "COMMAND_BY", "COST_BY", "DROPS", "PHASE_NAMES", "STALL_S", "TOKEN_BY", "World", "shared_seed"]
 
 #: Phase deadlines of real time, as fractions of the period after the step's scheduled start.
 BEACON_BY, TOKEN_BY, COST_BY, COMMAND_BY = 0.25, 0.60, 0.90, 1.0
@@ -69,6 +76,18 @@ STALL_S = 60.0
 STARTUP_S, STARTUP_PER_ROBOT_S = 60.0, 5.0
 #: Seconds between checks that the robot processes still run while the world waits.
 POLL_S = 0.05
+#: Why the world drops a record a robot's keys brought (module docstring).
+DROPS = ("forged", "malformed", "foreign")
+
+
+def shared_seed(scenario: Scenario, seed: int = 0) -> int:
+    """The seed a swarm's robots share (their frames and starting noise): a one-way hash of the scenario
+    (its seed, or ``seed`` when it has none, and its whole content), so robots agree without being told
+    what rebuilds the world."""
+    h = hashlib.sha256(b"madp-swarm-seed\x00")
+    h.update(str(scenario.seed if scenario.seed is not None else int(seed)).encode() + b"\x00")
+    h.update(json.dumps(scenario.to_dict(), sort_keys=True).encode())
+    return int.from_bytes(h.digest()[:8], "little") & ((1 << 63) - 1)
 
 
 class World:
@@ -84,6 +103,7 @@ class World:
         self.settings = network or NetworkSettings()
         p, n = self.env.params, self.env.num_robots
         self.seed = scenario.seed if scenario.seed is not None else 0
+        self.shared_seed = shared_seed(scenario)
         self.network = Network(self.settings, n, p.comm_radius_m, p.world_size, self.seed)
         self.radio = Radio(self.network, token_dim, costs)
         self.cost_round = costs is not None
@@ -102,6 +122,7 @@ class World:
         self.failed_at: list[int | None] = [None] * n
         self.why: list[str | None] = [None] * n
         self.wire = {"step": np.zeros((n, 2), np.int64), "command": np.zeros((n, 2), np.int64)}  # [count, bytes]
+        self.dropped = {why: np.zeros(n, np.int64) for why in DROPS}
         self.world_ms: list[float] = []
         self.sent_at: dict[int, np.ndarray] = {}
         self.t0 = 0.0
@@ -112,19 +133,18 @@ class World:
         p, started = self.env.params, time.perf_counter()
         self.robots = robots
         exact = self.settings.position_noise_m == 0
-        start = [encode_start(i, self.seed, self.settings.max_age, p.to_dict(), exact) for i in range(self.n)]
+        start = [encode_start(i, self.shared_seed, self.settings.max_age, p.to_dict(), exact) for i in range(self.n)]
         ready: set[int] = set()
         limit = STARTUP_S + STARTUP_PER_ROBOT_S * self.n
         next_poll = 0.0
         while len(ready) < self.n:
             a = self.bus.receive(POLL_S)
             now = time.perf_counter()
-            if a is not None:
-                rec = decode(a.data)
-                if isinstance(rec, Hello) and rec.robot == a.robot < self.n:
-                    self.bus.send(a.robot, "start", start[a.robot])
-                elif isinstance(rec, Ready) and rec.robot == a.robot < self.n:
-                    ready.add(a.robot)
+            rec = None if a is None else self._record(a)
+            if isinstance(rec, Hello):
+                self.bus.send(a.robot, "start", start[a.robot])
+            elif isinstance(rec, Ready):
+                ready.add(a.robot)
             if now >= next_poll:
                 next_poll = now + POLL_S
                 for i in sorted(set(range(self.n)) - ready):
@@ -167,9 +187,28 @@ class World:
     def _deadline(self, step: int, fraction: float) -> float | None:
         return None if self.rate_hz is None else self.t0 + (step + fraction) / self.rate_hz
 
+    def _record(self, a):
+        """The record arrival ``a`` brings, or None (counted under :data:`DROPS`) when it is forged,
+        does not decode or names another robot."""
+        i = a.robot
+        if a.data is None:
+            self.dropped["forged"][i] += 1
+            return None
+        rec = decode(a.data)
+        if rec is None:
+            self.dropped["malformed"][i] += 1
+        elif isinstance(rec, (Hello, Ready, Command)) and rec.robot != i:
+            self.dropped["foreign"][i] += 1
+            return None
+        return rec
+
+    def running(self, step: int) -> bool:
+        """Whether any robot is still running at ``step``."""
+        return bool(self.network.alive(step).any())
+
     def _take(self, a, step: int, phase: int, want: set, got: dict) -> bool:
         """File one arrival during ``phase`` of ``step``; True when it is one the phase waits for."""
-        rec, i = decode(a.data), a.robot
+        rec, i = self._record(a), a.robot
         if isinstance(rec, Sent) and rec.phase < len(self.channels) and i < self.n:
             channel = CHANNELS[rec.phase]
             if rec.message.step == step and rec.phase == phase and i in want and i not in got:
@@ -178,7 +217,7 @@ class World:
                     return True
             elif rec.message.step < step or (rec.message.step == step and rec.phase < phase):
                 self.radio.late(channel, i)
-        elif isinstance(rec, Command) and rec.robot == i < self.n:
+        elif isinstance(rec, Command):
             sent = self.sent_at.get(rec.step)
             if sent is not None and sent[i] > 0:
                 self.latency_ms[i].append(1e3 * (a.at_s - sent[i]))
@@ -306,6 +345,7 @@ class World:
                 "deadline_misses": int(self.deadline_misses[i]),
                 "misses_by_phase": {name: int(self.misses[i, k]) for k, name in enumerate(self.phases)},
                 "late_commands": int(self.late_commands[i]),
+                "dropped": {why: int(v[i]) for why, v in self.dropped.items()},
                 "failed_at_step": self.failed_at[i], "failure": self.why[i], "exit": describe_exit(codes[i]),
                 "messages": {**{ch: self.radio.counts[ch].of(i) for ch in self.channels},
                              **{k: {"count": int(v[i, 0]), "bytes": int(v[i, 1])} for k, v in self.wire.items()}},
@@ -315,6 +355,7 @@ class World:
             "robots": robots,
             "latency_ms": {"p50": pct(every, 50), "p99": pct(every, 99), "max": float(max(every)) if every else None},
             "deadline_misses": int(self.deadline_misses.sum()),
+            "dropped": {why: int(v.sum()) for why, v in self.dropped.items()},
             "world_ms": {"p50": pct(self.world_ms, 50), "p99": pct(self.world_ms, 99)},
             "failed": [{"robot": i, "step": self.failed_at[i], "why": self.why[i]} for i in range(self.n)
                        if self.failed_at[i] is not None],

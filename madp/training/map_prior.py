@@ -72,6 +72,21 @@ class WindowHook(Hook):
                 self.parts.append((t, b, window_examples(env)))
 
 
+class _StepBar(Hook):
+    """Advances a progress bar by each environment's step, so a long rollout shows it moves."""
+
+    def __init__(self, bar, task):
+        self.bar, self.task = bar, task
+
+    def stepped(self, t, envs):
+        if t > 0:
+            self.bar.advance(self.task, len(envs))
+
+
+#: Bounds of ``madp value collect``: rollouts, and steps of each (its examples are held in memory).
+MAX_COLLECT_ENVS, MAX_COLLECT_STEPS = 100_000, 10_000
+
+
 def _scenario(seed: int, index: int, params: SimParams) -> Scenario:
     s = Scenario.random(scenario_seed(seed, "train", 0, index), params)
     launch = TRAINING_LAUNCHES[index % len(TRAINING_LAUNCHES)]
@@ -93,9 +108,10 @@ def collect(out: Path, num_envs: int, every: int = 20, steps: int = 600, seed: i
         raise SettingError("out", f"expected a .npz file, got {out}")
     if out.exists() and not overwrite:
         raise SettingError("out", f"{out} exists; pass --overwrite to replace it")
-    for name, v, lo in (("num_envs", num_envs, 1), ("every", every, 1), ("steps", steps, 1), ("batch", batch, 1)):
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise SettingError(name, f"expected a whole number >= {lo}, got {v!r}")
+    for name, v, hi in (("envs", num_envs, MAX_COLLECT_ENVS), ("every", every, MAX_COLLECT_STEPS),
+                        ("steps", steps, MAX_COLLECT_STEPS), ("batch", batch, MAX_COLLECT_ENVS)):
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= hi:
+            raise SettingError(name, f"expected a whole number from 1 to {hi}, got {v!r}")
     params = SimParams()
     ctrl = make_controller("madp", policy, sampling=SamplingSettings.of())
     xs, ys, ws, env_ids = [], [], [], []
@@ -103,16 +119,15 @@ def collect(out: Path, num_envs: int, every: int = 20, steps: int = 600, seed: i
     from rich.progress import Progress
 
     with Progress(disable=not progress) as bar:
-        task = bar.add_task("rollouts", total=num_envs)
+        task = bar.add_task("rollout steps", total=num_envs * steps)
         for lo in range(0, num_envs, batch):
             idx = list(range(lo, min(num_envs, lo + batch)))
             envs = [CoverageEnv(_scenario(seed, i, params)) for i in idx]
             gens = [noise_generator(e.scenario.seed) for e in envs]
             hook = WindowHook(every)
-            run(envs, lambda es: ctrl.act_batch(es, gens), [hook], steps=steps)
+            run(envs, lambda es: ctrl.act_batch(es, gens), [hook, _StepBar(bar, task)], steps=steps)
             for _, b, (x, y, w) in hook.parts:
                 xs.append(x), ys.append(y), ws.append(w), env_ids.append(np.full(len(x), idx[b], np.int32))
-            bar.advance(task, len(idx))
     meta = {"format": FORMAT, "num_envs": num_envs, "every": every, "steps": steps, "seed": seed,
             "policy": str(policy or "shipped"), "launches": list(TRAINING_LAUNCHES),
             "examples": int(sum(len(x) for x in xs)), "seconds": round(time.perf_counter() - t0, 1)}

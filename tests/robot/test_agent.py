@@ -32,7 +32,9 @@ def tiny_dir(tmp_path_factory):
 
 
 def _swarm(env: CoverageEnv, runtime: RobotRuntime) -> list[RobotAgent]:
-    seed = env.scenario.seed if env.scenario.seed is not None else 0
+    from madp.swarm.world import shared_seed
+
+    seed = shared_seed(env.scenario)  # what a swarm's START hands each robot
     exact = env.network is None or env.network.settings.position_noise_m == 0
     return [RobotAgent(i, runtime, env.params, seed, exact_position=exact) for i in range(env.num_robots)]
 

@@ -92,12 +92,14 @@ def replay(export_dir: Path, inputs: list[tuple[str, bytes]], robot: int, num_ro
     bytes)]``), published on the same bus. Returns its commands ``{step: action [2]}`` and the process
     (still running when the inputs end without a stop packet)."""
     from madp.swarm.bus import WorldBus
+    from madp.swarm.robots import hand_key
 
     bus = WorldBus(num_robots)
     cmd = [sys.executable, "-m", "madp.robot", "run", "--export", str(export_dir), "--id", str(robot),
-           "--endpoint", bus.endpoint, "--key", bus.run_key, "--silence-s", str(silence_s)]
-    proc = subprocess.Popen(cmd, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE)
+           "--endpoint", bus.endpoint, "--key", bus.run_key, "--secret", "-", "--silence-s", str(silence_s)]
+    proc = subprocess.Popen(cmd, env={**os.environ, "OMP_NUM_THREADS": "1"}, stdin=subprocess.PIPE,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    hand_key(proc, bus.key(robot))
     commands: dict[int, np.ndarray] = {}
 
     def take(timeout_s: float):

@@ -61,7 +61,8 @@ def test_lockstep_swarm_equals_the_one_process_reference(lockstep):
     assert len(s["cost"]) == STEPS + 1 and np.abs(np.array(s["cost"]) - ref).max() <= 1e-6
     assert s["final_cost"] == s["cost"][-1] < 1.0 and s["mode"] == "lockstep" and s["failed"] == []
     on_disk = json.loads((lockstep["out"] / "summary.json").read_text())
-    assert on_disk["cost"] == s["cost"] and sorted(p.name for p in lockstep["out"].iterdir()) == ["summary.json", "swarm.mcap"]
+    assert on_disk["cost"] == s["cost"] and sorted(p.name for p in lockstep["out"].iterdir()) == ["madp-swarm.json", "summary.json", "swarm.mcap"]
+    assert s["outcome"] == "completed" and s["dropped"] == {"forged": 0, "malformed": 0, "foreign": 0}
     for r in s["robots"]:
         assert r["deadline_misses"] == 0 and r["failed_at_step"] is None and r["exit"] == "exit status 0"
         assert r["latency_ms"]["count"] == STEPS and 0 < r["latency_ms"]["p50"] <= r["latency_ms"]["p99"]
@@ -184,6 +185,9 @@ def test_real_time_with_a_robot_process_killed_mid_run(tmp_path, export_dir, mon
     (["--scenario", "{tmp}/none.json"], "none.json"),
     (["--policy", "{tmp}"], "runtime.json"),
     (["--rate-hz", "0"], "--rate-hz"),
+    (["--rate-hz", "1e-9"], "--rate-hz"),
+    (["--rate-hz", "1e6"], "--rate-hz"),
+    (["--steps", "100000000000"], "--steps"),
     (["--network", "loss=2"], "loss"),
     (["--steps", "0"], "--steps"),
     (["--out", "{tmp}/sc.json"], "not a directory"),
@@ -205,6 +209,38 @@ def test_user_errors_are_one_line_before_any_process_starts(tmp_path, export_dir
         base[flag] = value
     assert_one_line(*cli("swarm", *[x for kv in base.items() for x in kv]), needle)
     assert not (tmp_path / "out").exists()
+
+
+def test_overwrite_replaces_only_what_a_recorded_run_wrote_and_the_machine_is_checked(tmp_path, export_dir,
+                                                                                      monkeypatch):
+    """A folder that holds only the user's own summary.json is not a swarm run's: --overwrite refuses,
+    naming it, and leaves it; more robots than the machine's memory holds is one line, before any
+    robot process starts."""
+    from madp.swarm import robots
+    from tests.test_reliability_errors import assert_one_line, cli
+
+    def refuse(*a, **k):
+        raise AssertionError("a robot process was started")
+
+    monkeypatch.setattr(robots.RobotProcesses, "__init__", refuse)
+    scenario().save(tmp_path / "sc.json")
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "summary.json").write_text("my own notes")
+    args = ["swarm", "--scenario", tmp_path / "sc.json", "--policy", export_dir, "--steps", "3", "--out", tmp_path / "out"]
+    assert_one_line(*cli(*args, "--overwrite"), "summary.json", "not written by madp")
+    assert (tmp_path / "out" / "summary.json").read_text() == "my own notes"
+    from madp.swarm.run import OWNED, RECORD, _check_out
+
+    prev = tmp_path / "prev"  # an earlier run, by its record: replaced
+    prev.mkdir()
+    for name in OWNED:
+        (prev / name).write_text(json.dumps({"files": list(OWNED)}) if name == RECORD else "run")
+    assert_one_line(*cli(*args[:-1], prev), "--overwrite replaces it")
+    _check_out(prev, True)
+    assert list(prev.iterdir()) == []
+    monkeypatch.setattr(robots, "available_mb", lambda: 2 * robots.ROBOT_MB)
+    assert_one_line(*cli(*args[:-1], tmp_path / "new"), "4 robot processes need", "at most 2 robots")
+    assert not (tmp_path / "new").exists()
 
 
 @pytest.mark.parametrize("network", [None, LOSSY], ids=["ideal", "lossy"])
