@@ -38,7 +38,7 @@ import numpy as np
 
 from madp.controllers import ORACLES, SAMPLING, display_name, split_name
 from madp.errors import InputError
-from madp.eval.kept_schema import check_kept
+from madp.results.kept_schema import check_kept
 from madp.io.jsonfile import read_json
 
 from madp.eval.paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results

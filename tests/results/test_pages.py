@@ -77,7 +77,7 @@ def test_merged_runs_must_share_their_environments_and_not_a_controller(folder):
     write_run(root, "base-2/uniform", "uniform", {"uniform": 5}, {"clairvoyant": dcvt[:5]})
     write_run(root, "base-3/uniform", "uniform", {"uniform": 6}, {"dcvt": dcvt})
     spec = json.loads((root / "kept.json").read_text())
-    spec["runs"].update({"base-2": {}, "base-3": {}})
+    spec["runs"].update({n: {"date": "2026-12-01", "commit": "0000000"} for n in ("base-2", "base-3")})
     for extra, message in (("base-2/uniform", "hold other environments"), ("base-3/uniform", "is in both")):
         spec["default"]["dirs"] = ["mine-1/uniform", "base-1/uniform", extra]
         (root / "kept.json").write_text(json.dumps(spec))
