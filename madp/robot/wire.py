@@ -28,7 +28,7 @@ position, reading or action, bad UTF-8 or JSON) decode to None, so no packet can
 delivered message's token may still be anything the sender put there: :func:`madp.robot.read_inbox`
 checks it.
 
-The cost phase is the round of the ``_joint`` selection rules (:data:`madp.robot.runtime.JOINT_RULES`)
+The cost phase is the round of the ``_joint`` selection rules (:attr:`madp.selection.Rule.joint`)
 only: each robot's K costs of its candidates' copies, sent after it sampled and before its command.
 
 Keys (``RUN`` a run's key, ``I`` a robot's id): the world publishes to ``madp/RUN/robot/I/in/<name>``
