@@ -20,6 +20,7 @@ import typer
 
 from madp.commands.main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
+from madp.selection import select_help
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
@@ -43,8 +44,8 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
     """The options before a command (``madp --version``)."""
 
 
-# MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; docs/concepts/sampling.md): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable) | value (explore with the policy file's learned map prior in place of the mean: madp value train) | value_explore (value, with explore's mean as a floor) | value_joint (value, one copy per neighbourhood: neighbours' costs of each copy summed) | value_explore_joint (value_joint with explore's floor) | oracle_joint (value_joint on the true map: an upper bound, not runnable).")
+# MADP's choice among K samples per robot (madp.selection's records), wherever MADP samples.
+SELECT = typer.Option(None, help=select_help())
 CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------

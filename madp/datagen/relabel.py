@@ -33,7 +33,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
     policy's parent dataset;
     ``{}`` (the expert drives) without a policy, where a ``beta`` or a ``select`` is refused."""
     from madp.policies.checkpoint import load_policy
-    from madp.policies.select import check_selection, default_candidates
+    from madp.selection import check_rule, default_candidates
 
     if policy is None:
         if beta:
@@ -41,7 +41,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
         if select != "none":
             raise SettingError("select", "only meaningful with a policy")
         return {}
-    check_selection(select, default_candidates(select))
+    check_rule(select, default_candidates(select))
     policy = Path(policy)
     _, meta = load_policy(policy)
     if select != "none" and meta["kind"] != "madp":

@@ -106,8 +106,8 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
     (a random uniform-launch scenario) with K candidates per robot at S sampler steps, for every
     (K, S) of ``candidates`` (S ``None``: the default S) and every rule of
-    :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1; ``value`` when the
-    checkpoint carries a map prior): the
+    :data:`madp.selection.RULES` that fits it (``none`` at K = 1; those that need a map prior when
+    the checkpoint carries one): the
     policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
     the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
     untrained ``cpu`` preset; the default sampler."""
@@ -115,7 +115,7 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
 
     from madp.models import MADP, madp_config
     from madp.policies import MADPPolicy, SamplingSettings, noise_generator
-    from madp.policies.select import SELECTS
+    from madp.selection import RULES, rule_names
     from madp.sim import CoverageEnv, Scenario, SimParams
 
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
@@ -128,7 +128,8 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     rows = []
     with torch_threads(threads):
         for k, steps in candidates:
-            for select in SELECTS[:1] if k == 1 else [s for s in SELECTS[1:] if not s.startswith("value") or prior is not None]:
+            for select in rule_names(sees=("samples",)) if k == 1 else [
+                    s for s in rule_names(sees=("own map", "true map", "world")) if not RULES[s].prior or prior is not None]:
                 sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
                 policy = MADPPolicy(model, "decentralized", sampling, device=device, map_prior=prior)
                 gen = noise_generator(seed)

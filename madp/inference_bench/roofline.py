@@ -148,21 +148,23 @@ def observation_costs(env) -> tuple[int, int]:
 
 def selection_costs(env, select: str, candidates: int) -> tuple[int, int]:
     """(FLOPs, bytes) of rule ``select`` choosing among ``candidates`` K at ``env``'s state (module
-    docstring): the map rules (``cell``, ``explore``, ``mppi``, ``oracle_cell``), ``medoid`` and ``none``."""
-    from madp.robot.choice import MAP_RULES, explore_prior, local_views
+    docstring): ``none`` and the rules that rank, robot by robot, on the mean of the explored blocks or on
+    the true map (not the learned prior's: its network is timed, not counted)."""
+    from madp.robot.choice import local_views
+    from madp.selection import RULES, weigh
 
     n, k = env.num_robots, candidates
-    if select == "none":
+    r = RULES.get(select)
+    if r is not None and not r.ranks and not r.bound:
         return 0, 0
-    if select == "medoid":
-        return 6 * n * k * k, F32 * 2 * n * k
-    if select not in (*MAP_RULES, "oracle_cell"):
-        raise SettingError("select", f"the roofline counts the map rules, medoid and none, got {select!r}")
-    views = local_views(env, true_map=select == "oracle_cell")
+    if r is None or not r.ranks or r.prior or r.joint:
+        raise SettingError("select", f"the roofline counts none and the rules that rank on the explored mean or the "
+                                     f"true map, got {select!r}")
+    views = local_views(env, true_map=r.sees == "true map")
     s, g = env.maps.local_size, views.weights.shape[1]
     flops, traffic = n * s * s, F32 * n * s * s + 8 * n * g * g
-    if select == "explore":
-        views = explore_prior(env, views)
+    if r.weigh is not None:  # the explored blocks' mean on the unexplored ones
+        views = weigh(r, env.maps, views)
         flops, traffic = flops + 2 * n * g * g, traffic + (8 + 1 + 8) * n * g * g
     blocks = (views.weights != 0).sum((1, 2))
     flops += int((blocks * (5 * views.valid.sum(1) + 7 * k)).sum())

@@ -18,7 +18,7 @@ from tests.test_reliability_errors import cli
 @pytest.mark.parametrize("overrides,layout,sampling", [
     ({}, "uniform", SamplingSettings()),
     ({"cnn_norm": "none", "mlp_ratio": 2, "time_embed_dim": 16, "n_dec_layers": 3}, "square",
-     SamplingSettings(sampler="ddim", sampling_steps=2, select="medoid", candidates=3)),
+     SamplingSettings(sampler="ddim", sampling_steps=2, select="oracle_cell", candidates=3)),
 ])
 def test_analytic_costs_are_what_torch_counts(overrides, layout, sampling):
     torch.manual_seed(0)
