@@ -304,8 +304,10 @@ def _add_commands() -> None:
     from madp.cli_report import report_cmd  # madp eval report: the documentation's results tables
     from madp.cli_swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
     from madp.cli_value import value_app  # madp value: the value rule's learned map prior
+    from madp.cli_critic import critic_app  # madp critic: the learned critic of MADP's joint copies
     app.add_typer(bench_app, name="bench")
     app.add_typer(value_app, name="value")
+    app.add_typer(critic_app, name="critic")
     dataset_app.command("import")(dataset_import_cmd)
     eval_app.command("report")(report_cmd)
     app.command("swarm")(swarm_cmd)
