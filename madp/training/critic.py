@@ -45,7 +45,7 @@ __all__ = ["CopiesHook", "FORMAT", "collect", "draw_copies", "load_labels", "loa
 #: Format version of the labels file.
 FORMAT = 1
 #: The arrays of one state, and the dtype each is stored in.
-FIELDS = {"x": np.float16, "actions_mps": np.float32, "j_before": np.float64, "j_after": np.float64,
+FIELDS = {"x": np.float16, "actions_mps": np.float64, "j_before": np.float64, "j_after": np.float64,
           "position_m": np.float64, "start_m": np.float64, "offset_m": np.float64, "neighbours": np.bool_,
           "mass": np.float64, "centroid_m": np.float64, "explore_costs": np.float64, "value_costs": np.float64}
 

@@ -1,0 +1,132 @@
+"""The learned critic of MADP's joint copies: its labels (the true J of each copy), its inputs, the
+copies' scores and choices, training and the ranking numbers, and the one-line errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from madp.errors import InputError, SettingError
+from madp.models.critic import Critic, critic_predictor, load_critic
+from madp.policies.select import oracle_costs
+from madp.robot.choice import local_views
+from madp.robot.critic import (copy_scores, critic_choice, critic_inputs, critic_select, neighbour_counts,
+                               own_cell_fraction)
+from madp.sim import CoverageEnv, SimParams
+from madp.sim.voronoi import coverage_cost
+from madp.training.critic import collect, load_labels, load_many, split_envs, world_prefix
+from madp.training.critic_fit import gain_share, predicted_scores, ranking, spearman, state_moves, train
+from madp.training.map_prior import _scenario
+from tests.test_reliability_errors import cli
+
+
+@pytest.fixture(scope="module")
+def labels(tmp_path_factory):
+    d = tmp_path_factory.mktemp("critic")
+    meta = collect(d / "labels.npz", 2, every=2, steps=3, copies=3, batch=2, progress=False)
+    return d, meta
+
+
+def test_labels_have_their_shapes_and_are_the_copies_true_j(labels):
+    d, meta = labels
+    data, stored = load_labels(d / "labels.npz")
+    assert meta["states"] == stored["states"] == 4  # steps 0 and 2 of two rollouts
+    s, k, n = 4, 3, SimParams().num_robots
+    shapes = {"x": (s, n, 5, 16, 16), "actions_mps": (s, k, n, 2), "j_before": (s,), "j_after": (s, k),
+              "position_m": (s, n, 2), "neighbours": (s, n, n), "mass": (s, n), "centroid_m": (s, n, 2),
+              "explore_costs": (s, n, k), "env": (s,), "step": (s,)}
+    assert {key: data[key].shape for key in shapes} == shapes
+    assert list(data["step"]) == [0, 0, 2, 2] and list(data["env"]) == [0, 1, 0, 1]
+    for i in range(s):  # the label is oracle_costs of the copies from the stored state, bit for bit
+        env = CoverageEnv(_scenario(0, int(data["env"][i]), SimParams()))
+        env.start_m, env.offset_m = data["start_m"][i], data["offset_m"][i]
+        assert np.array_equal(oracle_costs(env, data["actions_mps"][i]), data["j_after"][i])
+        assert data["j_before"][i] == coverage_cost(env.prefix, data["position_m"][i])
+    assert np.isnan(data["value_costs"]).all()  # no map prior given
+
+
+def test_inputs_from_a_robots_window_and_neighbours():
+    env = CoverageEnv(_scenario(0, 0, SimParams()))
+    views = local_views(env)
+    x = critic_inputs(env.maps, views)
+    assert x.shape == (32, 5, 16, 16) and x.dtype == np.float32
+    own = own_cell_fraction(views)
+    assert ((own >= 0) & (own <= 1)).all()
+    counts = neighbour_counts(views)
+    inside = ((views.neighbours_m - views.origin_m[:, None] >= 0) & (views.neighbours_m - views.origin_m[:, None] < 256))
+    assert np.array_equal(counts.sum((1, 2)), (views.valid & inside.all(-1)).sum(1))
+
+
+def test_scores_choices_and_ranking_numbers_on_a_hand_made_example():
+    # M (|δ − d|² − |d|²): mass 2, centroid 1 m along x; a move of 1 m toward it gains 2, staying 0.
+    s = copy_scores(np.array([2.0]), np.array([[1.0, 0.0]]), np.array([[[1.0, 0.0], [0.0, 0.0], [-1.0, 0.0]]]))
+    assert np.allclose(s, [[-2.0, 0.0, 6.0]])
+    scores = np.array([[0.0, 1.0], [1.0, 0.0], [0.0, 3.0]])
+    near = np.array([[False, True, False], [True, False, False], [False, False, False]])
+    assert list(critic_choice(scores, near, "robot")) == [0, 1, 0]
+    assert list(critic_choice(scores, near, "neighbourhood")) == [0, 0, 0]  # robots 0, 1 tie: lowest k
+    assert list(critic_choice(scores + [[0, -2], [0, 0], [0, 0]], near, "neighbourhood")) == [1, 1, 0]
+    assert list(critic_choice(scores, near, "team")) == [0, 0, 0]
+    assert np.allclose(spearman(np.array([[1.0, 2, 3], [3, 2, 1]]), np.array([[10.0, 20, 30], [10, 20, 30]])), [1, -1])
+    per_state, pooled = gain_share(np.array([[1.0, 2, 3], [4, 4, 7]]), np.array([1.0, 6.0]))
+    assert np.allclose(per_state, [1.0, -1.0]) and pooled == pytest.approx((1 - 1) / (1 + 1))
+
+
+def test_scores_ranked_as_the_true_j_keep_all_of_oracles_gain(labels):
+    d, _ = labels
+    data, _ = load_labels(d / "labels.npz")
+    data["moves"] = state_moves(data)
+    # scores that rank exactly as the true J does keep all of oracle's gain
+    scores = np.broadcast_to(data["j_after"][:, None, :], data["explore_costs"].shape) / 32
+    prefixes = {e: world_prefix(0, e) for e in (0, 1)}
+    r = ranking(data, np.ascontiguousarray(scores), prefixes)
+    assert r["spearman_team"] == pytest.approx(1.0) and r["gain_share_team"] == pytest.approx(1.0)
+    assert r["gain_share_robot"] == pytest.approx(1.0)  # every robot keeps oracle's copy
+
+
+def test_the_critic_trains_saves_loads_and_selects(labels, tmp_path):
+    d, _ = labels
+    data, _ = load_labels(d / "labels.npz")
+    torch.manual_seed(0)
+    net = train(data, np.array([0]), tmp_path / "critic.safetensors", epochs=2, batch=2, log=lambda _: None)
+    loaded = load_critic(tmp_path / "critic.safetensors")
+    assert loaded.record["train_envs"] == [0] and loaded.record["states"] == 2
+    x = torch.from_numpy(data["x"][0].astype(np.float32))
+    with torch.no_grad():
+        assert all(torch.equal(a, b) for a, b in zip(net(x), loaded(x)))
+    scores = predicted_scores(loaded, data)
+    assert scores.shape == (4, 32, 3) and np.isfinite(scores).all()
+    env = CoverageEnv(_scenario(0, 1, SimParams()))
+    views = local_views(env)
+    cand = np.random.default_rng(0).normal(size=(3, 32, 2))
+    kept = critic_select(cand, views, critic_inputs(env.maps, views), critic_predictor(loaded),
+                         env.neighbour_view()[0], env.params, "team")
+    assert any(np.array_equal(kept, c) for c in cand)  # team-wide: one whole copy
+    with pytest.raises(SettingError, match="candidates_mps"):
+        critic_select(cand[:, :5], views, critic_inputs(env.maps, views), critic_predictor(loaded),
+                      env.neighbour_view()[0], env.params)
+
+
+def test_bad_input_gets_one_line_errors(labels, tmp_path):
+    d, _ = labels
+    with pytest.raises(InputError, match="not found"):
+        load_labels(tmp_path / "missing.npz")
+    (tmp_path / "foreign.npz").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="not a critic labels file"):
+        load_labels(tmp_path / "foreign.npz")
+    with pytest.raises(InputError, match="share environments"):
+        load_many([d / "labels.npz", d / "labels.npz"])
+    with pytest.raises(InputError, match="not a critic file"):
+        load_critic(tmp_path / "foreign.npz")
+    with pytest.raises(SettingError, match="npz"):
+        collect(tmp_path / "labels.json", 1, progress=False)
+    with pytest.raises(SettingError, match="exists"):
+        collect(d / "labels.npz", 1, progress=False)
+    with pytest.raises(SettingError, match="held_out"):
+        split_envs(np.array([0, 1]), 1.5)
+    with pytest.raises(SettingError, match="scope"):
+        critic_choice(np.zeros((2, 3)), np.zeros((2, 2), bool), "swarm")
+    assert [list(e) for e in split_envs(np.array([0, 0, 1, 2, 3]), 0.25)] == [[0, 1, 2], [3]]
+    code, err = cli("critic", "train", "--data", tmp_path / "missing.npz", "--out", tmp_path / "c.safetensors")
+    assert code != 0 and "not found" in err and len(err.strip().splitlines()) == 1
