@@ -1,7 +1,7 @@
 """``madp critic …``: the learned critic of MADP's joint copies (:mod:`madp.training.critic`,
 :mod:`madp.training.critic_fit`): ``collect`` its labels from the deployed policy's rollouts, ``train``
 it with some rollouts held out, ``rank`` how it and the ``explore`` and ``value`` rules rank the
-copies of the held-out states."""
+copies of the held-out states, ``export`` it as an ONNX graph for the robot."""
 
 from __future__ import annotations
 
@@ -76,3 +76,19 @@ def critic_rank_cmd(
         typer.echo(f"{name:12s} spearman {r['spearman_team']:+.3f}  gain share robot {r['gain_share_robot']:+.2f} "
                    f"neighbourhood {r['gain_share_neighbourhood']:+.2f} team {r['gain_share_team']:+.2f}")
     typer.echo(f"-> {out}")
+
+
+@critic_app.command("export")
+def critic_export_cmd(
+    critic: Path = typer.Option(..., help="Critic file from madp critic train."),
+    out: Path = typer.Option(..., help="The ONNX graph to write (.onnx)."),
+) -> None:
+    """Export the critic as an ONNX graph the robot runs without torch (madp.robot.critic.onnx_predictor)."""
+    from madp.errors import SettingError
+    from madp.export.critic_onnx import export_critic
+    from madp.models.critic import load_critic
+
+    if out.suffix != ".onnx":
+        raise SettingError("out", f"expected an .onnx file, got {out}")
+    export_critic(load_critic(critic), out)
+    typer.echo(f"critic graph -> {out}")

@@ -66,7 +66,7 @@ class Critic(nn.Module):
         h = self.act(self.stem(x))
         for conv in self.blocks:
             h = h + self.act(conv(h))
-        p = torch.softmax(self.where(h).flatten(1), 1).view(len(x), *h.shape[2:])  # [R, H, W]
+        p = torch.softmax(self.where(h).flatten(1), 1).reshape(-1, *h.shape[2:])  # [R, H, W]
         where = torch.stack([(p.sum(2) * self.centre).sum(1), (p.sum(1) * self.centre).sum(1)], 1)
         out = self.pooled(torch.cat([h.mean((2, 3)), h.amax((2, 3))], 1))
         return nn.functional.softplus(out[:, 0]), where + 0.25 * torch.tanh(out[:, 1:])

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
     from madp.sim.robot_maps import RobotMaps
 
 __all__ = ["CRITIC_CHANNELS", "CRITIC_SCOPES", "OFFSET_SCALE_M", "copy_scores", "critic_choice", "critic_inputs",
-           "critic_select", "displacements_m", "neighbour_counts", "own_cell_fraction"]
+           "critic_select", "displacements_m", "neighbour_counts", "onnx_predictor", "own_cell_fraction"]
 
 #: Input channels: the map prior's three, the own-cell fraction, the neighbours per coarse cell.
 CRITIC_CHANNELS = 5
@@ -133,3 +133,27 @@ def critic_select(candidates_mps: np.ndarray, views: LocalViews, inputs: np.ndar
     scores = copy_scores(mass, offset_m, displacements_m(views, per_robot, params))
     k = critic_choice(scores, neighbours, scope)
     return np.take_along_axis(per_robot, k[:, None, None], 1)[:, 0]
+
+
+def onnx_predictor(path, threads: int = 1):
+    """The exported critic (``madp critic export``, :mod:`madp.export.critic_onnx`) as
+    :func:`critic_select`'s ``predict``, on onnxruntime's CPU provider with ``threads`` threads:
+    ``x [R, 5, H, H]`` -> ``(mass [R], offset_m [R, 2])`` float64. A one-line error for a missing or
+    damaged graph."""
+    import onnxruntime as ort
+
+    from madp.errors import InputError
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads, opts.inter_op_num_threads = int(threads), 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    try:
+        session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    except Exception as e:  # onnxruntime's own error types for a missing or damaged graph
+        raise InputError(f"{path}: not a loadable ONNX graph ({type(e).__name__})") from None
+
+    def predict(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mass, offset = session.run(None, {"windows": np.ascontiguousarray(x, np.float32)})
+        return mass.astype(np.float64), offset.astype(np.float64) * OFFSET_SCALE_M
+
+    return predict

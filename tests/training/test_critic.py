@@ -130,3 +130,19 @@ def test_bad_input_gets_one_line_errors(labels, tmp_path):
     assert [list(e) for e in split_envs(np.array([0, 0, 1, 2, 3]), 0.25)] == [[0, 1, 2], [3]]
     code, err = cli("critic", "train", "--data", tmp_path / "missing.npz", "--out", tmp_path / "c.safetensors")
     assert code != 0 and "not found" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_exported_critic_runs_without_torch_as_in_torch(labels, tmp_path):
+    from madp.robot.critic import onnx_predictor
+
+    d, _ = labels
+    data, _ = load_labels(d / "labels.npz")
+    train(data, np.array([0]), tmp_path / "critic.safetensors", epochs=1, batch=2, log=lambda _: None)
+    code, _ = cli("critic", "export", "--critic", tmp_path / "critic.safetensors", "--out", tmp_path / "critic.onnx")
+    assert code == 0
+    x = data["x"][1].astype(np.float32)
+    mass, offset = onnx_predictor(tmp_path / "critic.onnx")(x)
+    mass_t, offset_t = critic_predictor(load_critic(tmp_path / "critic.safetensors"))(x)
+    assert np.allclose(mass, mass_t, rtol=1e-4, atol=1e-6) and np.allclose(offset, offset_t, atol=1e-3)
+    with pytest.raises(InputError, match="not a loadable ONNX graph"):
+        onnx_predictor(tmp_path / "missing.onnx")
