@@ -1,5 +1,6 @@
 """The critic of MADP's joint copies (:class:`madp.models.critic.Critic`) as an ONNX graph, for the robot
-runtime: ``windows [R, 5, H, H]`` float32 (:func:`madp.robot.critic.critic_inputs`) -> ``mass [R]`` and
+runtime: ``windows [R, 5, H, H]`` and ``neighbours [R, M, 3]`` float32 (:func:`madp.robot.critic.critic_inputs`)
+-> ``mass [R]`` and
 ``offset [R, 2]`` (in units of :data:`madp.robot.critic.OFFSET_SCALE_M`), run torch-free by
 :func:`madp.robot.critic.onnx_predictor`."""
 
@@ -11,6 +12,7 @@ import torch
 
 from madp.export.onnx import _write_graph
 from madp.models.critic import Critic
+from madp.robot.critic import MAX_NEIGHBOURS
 
 __all__ = ["CRITIC_GRAPH", "export_critic"]
 
@@ -23,5 +25,7 @@ def export_critic(net: Critic, out: Path) -> Path:
     cells = net.config.cells
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    return _write_graph(net.eval(), (torch.rand(2, 5, cells, cells),), ("windows",), ("mass", "offset"),
-                        {"windows": {0: "robots"}, "mass": {0: "robots"}, "offset": {0: "robots"}}, out)
+    near = torch.rand(2, MAX_NEIGHBOURS, 3).round()
+    return _write_graph(net.eval(), (torch.rand(2, 5, cells, cells), near), ("windows", "neighbours"),
+                        ("mass", "offset"), {"windows": {0: "robots"}, "neighbours": {0: "robots"}, "mass": {0: "robots"},
+                                             "offset": {0: "robots"}}, out)

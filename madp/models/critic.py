@@ -2,7 +2,9 @@
 and the centroid of its true Voronoi cell, the two quantities a copy's change of the coverage cost J
 depends on to second order (:mod:`madp.robot.critic`, which turns them into each copy's score).
 
-Input ``[R, 5, H, H]`` (:func:`madp.robot.critic.critic_inputs`); output the cell's mass in units of
+Inputs ``windows [R, 5, H, H]`` and ``neighbours [R, MAX_NEIGHBOURS, 3]``
+(:func:`madp.robot.critic.critic_inputs`; the neighbours through a small set network, summed and
+maxed over them); output the cell's mass in units of
 the training data's mean mass (``[R]``, ≥ 0) and its centroid's offset from the robot in units of
 :data:`madp.robot.critic.OFFSET_SCALE_M` (``[R, 2]``, the window's axes). The offset is a spatial
 softmax over the coarse cells (a weighted mean of their centres) plus a small residual, so a centroid
@@ -48,7 +50,8 @@ class CriticConfig:
 
 
 class Critic(nn.Module):
-    """``[R, 5, H, H]`` -> ``(mass [R] ≥ 0, offset [R, 2])`` in the units of the module docstring."""
+    """``(windows [R, 5, H, H], neighbours [R, M, 3])`` -> ``(mass [R] ≥ 0, offset [R, 2])`` in the units
+    of the module docstring."""
 
     def __init__(self, config: CriticConfig | None = None):
         super().__init__()
@@ -57,29 +60,37 @@ class Critic(nn.Module):
         self.stem = nn.Conv2d(CRITIC_CHANNELS, c, 3, padding=1)
         self.blocks = nn.ModuleList(nn.Conv2d(c, c, 3, padding=d, dilation=d) for d in cfg.dilations)
         self.where = nn.Conv2d(c, 1, 1)  # the spatial softmax's logits
-        self.pooled = nn.Linear(2 * c, 3)  # mass (pre-softplus) and the offset's residual
+        self.near = nn.Sequential(nn.Linear(3, 2 * c), nn.LeakyReLU(0.01), nn.Linear(2 * c, 2 * c))
+        self.pooled = nn.Sequential(nn.Linear(6 * c, 2 * c), nn.LeakyReLU(0.01), nn.Linear(2 * c, 3))
         self.act = nn.LeakyReLU(0.01)
         centre = (torch.arange(cfg.cells, dtype=torch.float32) + 0.5 - cfg.cells / 2) * COARSE_M / OFFSET_SCALE_M
         self.register_buffer("centre", centre, persistent=False)
 
-    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, x: Tensor, near: Tensor) -> tuple[Tensor, Tensor]:
         h = self.act(self.stem(x))
         for conv in self.blocks:
             h = h + self.act(conv(h))
         p = torch.softmax(self.where(h).flatten(1), 1).reshape(-1, *h.shape[2:])  # [R, H, W]
         where = torch.stack([(p.sum(2) * self.centre).sum(1), (p.sum(1) * self.centre).sum(1)], 1)
-        out = self.pooled(torch.cat([h.mean((2, 3)), h.amax((2, 3))], 1))
+        valid = near[:, :, 2:]
+        e = self.near(near) * valid  # [R, M, 2c]: padding rows count 0 in the sum, -1e4 in the max
+        e_max = (e - 1e4 * (1.0 - valid)).amax(1).clamp(min=-1.0)
+        out = self.pooled(torch.cat([h.mean((2, 3)), h.amax((2, 3)), e.sum(1) / 4.0, e_max], 1))
         return nn.functional.softplus(out[:, 0]), where + 0.25 * torch.tanh(out[:, 1:])
 
 
 def critic_predictor(net: Critic):
-    """``net`` as :func:`madp.robot.critic.critic_select`'s ``predict``: ``x [R, 5, H, H]`` numpy ->
-    ``(mass [R], offset_m [R, 2])`` float64 numpy (the mass in the data's unit, the offset in metres)."""
+    """``net`` as :func:`madp.robot.critic.critic_select`'s ``predict``: ``(windows [R, 5, H, H],
+    neighbours [R, M, 3])`` numpy -> ``(mass [R], offset_m [R, 2])`` float64 numpy (the mass in the
+    data's unit, the offset in metres)."""
     p = next(net.parameters())
 
+    def tensor(a: np.ndarray) -> Tensor:
+        return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(p.device, p.dtype)
+
     @torch.inference_mode()
-    def predict(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        mass, offset = net(torch.from_numpy(np.ascontiguousarray(x, np.float32)).to(p.device, p.dtype))
+    def predict(windows: np.ndarray, near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mass, offset = net(tensor(windows), tensor(near))
         return mass.double().cpu().numpy(), offset.double().cpu().numpy() * OFFSET_SCALE_M
 
     return predict

@@ -17,7 +17,8 @@ The inputs, per robot, over its window coarsened to :data:`madp.robot.prior.COAR
 (``[R, 5, 16, 16]`` float32 for the 256 m window): the map prior's three channels
 (:func:`madp.robot.prior.window_inputs`), the fraction of each cell closer to the robot than to every
 neighbour it holds (its local Voronoi cell, :func:`own_cell_fraction`), and how many of those
-neighbours are in the cell.
+neighbours are in the cell; and the offsets of its nearest neighbours, those beyond its window too
+(:func:`neighbour_features`).
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ from .prior import COARSE_M, coarse_sum, window_inputs
 if TYPE_CHECKING:
     from madp.sim.robot_maps import RobotMaps
 
-__all__ = ["CRITIC_CHANNELS", "CRITIC_SCOPES", "OFFSET_SCALE_M", "copy_scores", "critic_choice", "critic_inputs",
-           "critic_select", "displacements_m", "neighbour_counts", "onnx_predictor", "own_cell_fraction"]
+__all__ = ["CRITIC_CHANNELS", "CRITIC_SCOPES", "MAX_NEIGHBOURS", "OFFSET_SCALE_M", "copy_scores", "critic_choice",
+           "critic_inputs", "critic_select", "displacements_m", "neighbour_counts", "neighbour_features", "onnx_predictor",
+           "own_cell_fraction"]
 
 #: Input channels: the map prior's three, the own-cell fraction, the neighbours per coarse cell.
 CRITIC_CHANNELS = 5
@@ -46,6 +48,8 @@ CRITIC_CHANNELS = 5
 CRITIC_SCOPES = ("robot", "neighbourhood", "team")
 #: The network predicts the centroid offset d_i in units of this many metres (half the window).
 OFFSET_SCALE_M = 128.0
+#: The nearest neighbours whose offsets the network reads (:func:`neighbour_features`).
+MAX_NEIGHBOURS = 16
 
 
 def own_cell_fraction(views: LocalViews) -> np.ndarray:
@@ -80,10 +84,29 @@ def neighbour_counts(views: LocalViews) -> np.ndarray:
     return out
 
 
-def critic_inputs(maps: RobotMaps, views: LocalViews) -> np.ndarray:
-    """The critic's input ``[R, 5, H, H]`` float32 for the robots of ``maps`` (module docstring)."""
+def neighbour_features(offsets_m: np.ndarray, valid: np.ndarray, comm_radius_m: float) -> np.ndarray:
+    """``[R, MAX_NEIGHBOURS, 3]`` float32: the offsets of each robot's nearest valid neighbours
+    ``offsets_m [R, M, 2]`` (neighbour minus robot, m) in units of r_c, and 1 for a real one (0 rows
+    pad), nearest first: what the network reads of the neighbours beyond its window too."""
+    offsets_m = np.asarray(offsets_m, np.float64)
+    r = len(offsets_m)
+    d2 = np.where(valid, (offsets_m ** 2).sum(-1), np.inf)
+    order = np.argsort(d2, axis=1, kind="stable")[:, :MAX_NEIGHBOURS]
+    out = np.zeros((r, MAX_NEIGHBOURS, 3), np.float32)
+    m = order.shape[1]
+    out[:, :m, :2] = np.take_along_axis(offsets_m, order[:, :, None], 1) / comm_radius_m
+    out[:, :m, 2] = np.take_along_axis(np.asarray(valid, bool), order, 1)
+    out[:, :, :2] *= out[:, :, 2:]
+    return out
+
+
+def critic_inputs(maps: RobotMaps, views: LocalViews, comm_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The critic's inputs for the robots of ``maps`` (module docstring): their windows ``[R, 5, H, H]``
+    float32 and their nearest neighbours' offsets ``[R, MAX_NEIGHBOURS, 3]`` (:func:`neighbour_features`)."""
     x, _, _ = window_inputs(maps, views)
-    return np.concatenate([x, own_cell_fraction(views)[:, None], neighbour_counts(views)[:, None]], 1)
+    windows = np.concatenate([x, own_cell_fraction(views)[:, None], neighbour_counts(views)[:, None]], 1)
+    own = views.start_m + views.offset_m
+    return windows, neighbour_features(views.neighbours_m - own[:, None], views.valid, comm_radius_m)
 
 
 def displacements_m(views: LocalViews, candidates_mps: np.ndarray, params: SimParams) -> np.ndarray:
@@ -118,18 +141,19 @@ def critic_choice(scores: np.ndarray, neighbours: np.ndarray, scope: str) -> np.
     raise SettingError("scope", f"expected one of {', '.join(CRITIC_SCOPES)}, got {scope!r}")
 
 
-def critic_select(candidates_mps: np.ndarray, views: LocalViews, inputs: np.ndarray, predict, neighbours: np.ndarray,
-                  params: SimParams, scope: str = "team") -> np.ndarray:
+def critic_select(candidates_mps: np.ndarray, views: LocalViews, inputs: tuple[np.ndarray, np.ndarray], predict,
+                  neighbours: np.ndarray, params: SimParams, scope: str = "team") -> np.ndarray:
     """The swarm's kept actions ``[N, 2]`` among the joint copies ``candidates_mps [K, N, 2]``: each
-    robot's cell mass and centroid offset from ``predict(inputs [N, 5, H, H]) -> (mass [N], offset_m
-    [N, 2])`` (the critic; :func:`madp.models.critic.critic_predictor`), the copies' scores
+    robot's cell mass and centroid offset from ``predict(*inputs) -> (mass [N], offset_m [N, 2])``
+    (``inputs``: :func:`critic_inputs`; ``predict``: :func:`madp.models.critic.critic_predictor` or
+    :func:`onnx_predictor`), the copies' scores
     (:func:`copy_scores`) and the copy ``scope`` keeps (:func:`critic_choice`). ``views``: each
     robot's :class:`LocalViews` row; ``neighbours [N, N]``: whose scores each robot holds."""
     cand = np.asarray(candidates_mps, np.float64)
     if cand.ndim != 3 or cand.shape[2] != 2 or cand.shape[1] != len(views.start_m):
         raise SettingError("candidates_mps", f"expected [K, {len(views.start_m)}, 2], got {list(cand.shape)}")
     per_robot = cand.transpose(1, 0, 2)  # [N, K, 2]
-    mass, offset_m = predict(inputs)
+    mass, offset_m = predict(*inputs)
     scores = copy_scores(mass, offset_m, displacements_m(views, per_robot, params))
     k = critic_choice(scores, neighbours, scope)
     return np.take_along_axis(per_robot, k[:, None, None], 1)[:, 0]
@@ -138,8 +162,8 @@ def critic_select(candidates_mps: np.ndarray, views: LocalViews, inputs: np.ndar
 def onnx_predictor(path, threads: int = 1):
     """The exported critic (``madp critic export``, :mod:`madp.export.critic_onnx`) as
     :func:`critic_select`'s ``predict``, on onnxruntime's CPU provider with ``threads`` threads:
-    ``x [R, 5, H, H]`` -> ``(mass [R], offset_m [R, 2])`` float64. A one-line error for a missing or
-    damaged graph."""
+    ``(windows [R, 5, H, H], neighbours [R, MAX_NEIGHBOURS, 3])`` -> ``(mass [R], offset_m [R, 2])``
+    float64. A one-line error for a missing or damaged graph."""
     import onnxruntime as ort
 
     from madp.errors import InputError
@@ -152,8 +176,9 @@ def onnx_predictor(path, threads: int = 1):
     except Exception as e:  # onnxruntime's own error types for a missing or damaged graph
         raise InputError(f"{path}: not a loadable ONNX graph ({type(e).__name__})") from None
 
-    def predict(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        mass, offset = session.run(None, {"windows": np.ascontiguousarray(x, np.float32)})
+    def predict(windows: np.ndarray, near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mass, offset = session.run(None, {"windows": np.ascontiguousarray(windows, np.float32),
+                                          "neighbours": np.ascontiguousarray(near, np.float32)})
         return mass.astype(np.float64), offset.astype(np.float64) * OFFSET_SCALE_M
 
     return predict

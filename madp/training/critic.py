@@ -8,8 +8,9 @@ noise of their own (the rollout's noise is left alone), and the file keeps, per 
 
 * the label: the true J after the step of each copy (:func:`madp.policies.select.oracle_costs`) and J
   before it;
-* per robot, what it knows: the critic's input (:func:`madp.robot.critic.critic_inputs`, from its own
-  map and the neighbours it holds), its position, whose positions it holds, and each copy's action of it;
+* per robot, what it knows: the critic's window input (:func:`madp.robot.critic.critic_inputs`, from
+  its own map and the neighbours it holds), its position, whose positions it holds (from which
+  :func:`stored_neighbours` gives the critic's neighbour input), and each copy's action of it;
 * per robot, the true mass and centroid of its Voronoi cell now (the quantities the critic predicts);
 * per robot, the ``explore`` rule's local cell cost of each copy (and the ``value`` rule's, when a
   map prior is given), the baselines the critic is judged against;
@@ -40,7 +41,7 @@ from madp.sim.voronoi import ColumnPrefix, voronoi_sums
 from madp.training.map_prior import _scenario
 
 __all__ = ["CopiesHook", "FORMAT", "collect", "draw_copies", "load_labels", "load_many", "split_envs", "state_record",
-           "world_prefix"]
+           "stored_neighbours", "world_prefix"]
 
 #: Format version of the labels file.
 FORMAT = 1
@@ -75,7 +76,8 @@ def state_record(env: CoverageEnv, copies_mps: np.ndarray, map_prior=None) -> di
     explore = local_cell_costs(explore_prior(env, views), per_robot, env.params)
     value = (local_cell_costs(value_views(env, views, map_prior), per_robot, env.params) if map_prior is not None
              else np.full_like(explore, np.nan))
-    return {"x": critic_inputs(env.maps, views), "actions_mps": copies_mps, "j_before": env.cost(),
+    windows, _ = critic_inputs(env.maps, views, env.params.comm_radius_m)  # the neighbours' part: stored_neighbours
+    return {"x": windows, "actions_mps": copies_mps, "j_before": env.cost(),
             "j_after": oracle_costs(env, copies_mps), "position_m": env.positions_m.copy(),
             "start_m": env.start_m.copy(), "offset_m": env.offset_m.copy(), "neighbours": env.neighbour_view()[0],
             "mass": sums.mass, "centroid_m": sums.centroid_m, "explore_costs": explore, "value_costs": value}
@@ -171,6 +173,20 @@ def load_labels(path: Path) -> tuple[dict, dict]:
     if not all(np.isfinite(data[k]).all() for k in ("x", "actions_mps", "j_after", "mass", "centroid_m")):
         raise InputError(f"{path}: the labels hold NaN or infinity")
     return data, meta
+
+
+def stored_neighbours(data: dict, comm_radius_m: float | None = None) -> np.ndarray:
+    """``[S, N, MAX_NEIGHBOURS, 3]`` float32: the critic's neighbour input of every robot of every stored
+    state (:func:`madp.robot.critic.neighbour_features`), from the positions and whose each robot holds
+    (the simulator without a network: a held position is the true one)."""
+    from madp.robot.critic import neighbour_features
+
+    r_c = SimParams().comm_radius_m if comm_radius_m is None else comm_radius_m
+    pos, near = data["position_m"], data["neighbours"].copy()
+    s, n = near.shape[:2]
+    near[:, np.arange(n), np.arange(n)] = False
+    offsets = pos[:, None, :, :] - pos[:, :, None, :]  # [S, N, N, 2]: robot j minus robot i
+    return neighbour_features(offsets.reshape(s * n, n, 2), near.reshape(s * n, n), r_c).reshape(s, n, -1, 3)
 
 
 def world_prefix(seed: int, index: int, params: SimParams | None = None) -> ColumnPrefix:

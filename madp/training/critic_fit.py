@@ -38,7 +38,7 @@ from madp.sim.params import SimParams
 from madp.sim.voronoi import ColumnPrefix, coverage_cost
 
 __all__ = ["gain_share", "predicted_scores", "rank_study", "ranking", "spearman", "state_moves", "train",
-           "true_cell_scores"]
+           "true_cell_scores", "with_derived"]
 
 
 def state_moves(data: dict, params: SimParams | None = None) -> np.ndarray:
@@ -46,6 +46,15 @@ def state_moves(data: dict, params: SimParams | None = None) -> np.ndarray:
     params = params or SimParams()
     y, _ = move(data["start_m"][:, None], data["offset_m"][:, None], data["actions_mps"].astype(np.float64), params)
     return (y - data["position_m"][:, None]).astype(np.float32)
+
+
+def with_derived(data: dict) -> dict:
+    """``data`` with the copies' moves (``moves``, :func:`state_moves`) and the critic's neighbour input
+    (``near``, :func:`madp.training.critic.stored_neighbours`) added where missing."""
+    from madp.training.critic import stored_neighbours
+
+    return {**data, **({} if "moves" in data else {"moves": state_moves(data)}),
+            **({} if "near" in data else {"near": stored_neighbours(data)})}
 
 
 def spearman(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -101,7 +110,7 @@ def _tensors(data: dict, rows: np.ndarray, mass_unit: float) -> dict[str, torch.
     offset = (data["centroid_m"][rows] - data["position_m"][rows]) / OFFSET_SCALE_M
     dj = data["j_after"][rows] - data["j_before"][rows][:, None]
     share = data["mass"][rows] / np.maximum(data["mass"][rows].sum(1, keepdims=True), 1e-12)
-    return {"x": torch.from_numpy(data["x"][rows].astype(np.float32)),
+    return {"x": torch.from_numpy(data["x"][rows].astype(np.float32)), "near": torch.from_numpy(data["near"][rows]),
             "log_mass": torch.from_numpy(np.log(np.maximum(data["mass"][rows], 1e-6 * mass_unit) / mass_unit)).float(),
             "offset": torch.from_numpy(offset).float(), "share": torch.from_numpy(share).float(),
             "moves": torch.from_numpy(data["moves"][rows]), "dj": torch.from_numpy(dj).float()}
@@ -110,7 +119,8 @@ def _tensors(data: dict, rows: np.ndarray, mass_unit: float) -> dict[str, torch.
 def _losses(net: Critic, b: dict[str, torch.Tensor], g: int) -> tuple[torch.Tensor, torch.Tensor]:
     """The cell loss and the ranking loss of one batch of states (module docstring), in D4 element g."""
     s, n = b["x"].shape[:2]
-    mass, offset = net(transform_image(b["x"].flatten(0, 1), g))
+    near = torch.cat([_vectors(b["near"][..., :2], g), b["near"][..., 2:]], -1)
+    mass, offset = net(transform_image(b["x"].flatten(0, 1), g), near.flatten(0, 1))
     mass, offset = mass.view(s, n), offset.view(s, n, 2)
     target = _vectors(b["offset"], g)
     w = b["share"]
@@ -139,8 +149,7 @@ def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 30, batch
     if rank_weight < 0:
         raise SettingError("rank_weight", f"expected a weight >= 0, got {rank_weight!r}")
     torch.manual_seed(seed)
-    if "moves" not in data:
-        data = {**data, "moves": state_moves(data)}
+    data = with_derived(data)
     mass_unit = float(data["mass"][rows].mean())
     cfg = CriticConfig(**{**(config or CriticConfig()).to_dict(), "mass_unit": mass_unit})
     net = Critic(cfg)
@@ -179,12 +188,12 @@ def predicted_scores(net: Critic, data: dict, rows: np.ndarray | None = None) ->
     from madp.robot.critic import copy_scores
 
     rows = np.arange(len(data["env"])) if rows is None else rows
-    moves = data["moves"] if "moves" in data else state_moves(data)
+    data = with_derived(data)
     predict = critic_predictor(net)
     out = []
     for s in rows:
-        mass, offset_m = predict(data["x"][s].astype(np.float32))
-        out.append(copy_scores(mass, offset_m, moves[s].transpose(1, 0, 2)))
+        mass, offset_m = predict(data["x"][s].astype(np.float32), data["near"][s])
+        out.append(copy_scores(mass, offset_m, data["moves"][s].transpose(1, 0, 2)))
     return np.stack(out)
 
 
@@ -210,8 +219,7 @@ def rank_study(paths, critic_path: Path) -> dict:
     held = ~np.isin(data["env"], net.record.get("train_envs", []))
     if not held.any():
         raise SettingError("data", f"every environment of the labels was one {critic_path} was trained on")
-    data = {k: v[held] for k, v in data.items()}
-    data["moves"] = state_moves(data)
+    data = with_derived({k: v[held] for k, v in data.items()})
     prefixes = {int(e): world_prefix(meta["seed"], int(e)) for e in np.unique(data["env"])}
     rules = {"critic": predicted_scores(net, data), "explore": data["explore_costs"]}
     if np.isfinite(data["value_costs"]).all():

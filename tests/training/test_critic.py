@@ -15,7 +15,7 @@ from madp.robot.critic import (copy_scores, critic_choice, critic_inputs, critic
                                own_cell_fraction)
 from madp.sim import CoverageEnv, SimParams
 from madp.sim.voronoi import coverage_cost
-from madp.training.critic import collect, load_labels, load_many, split_envs, world_prefix
+from madp.training.critic import collect, load_labels, load_many, split_envs, stored_neighbours, world_prefix
 from madp.training.critic_fit import gain_share, predicted_scores, ranking, spearman, state_moves, train
 from madp.training.map_prior import _scenario
 from tests.test_reliability_errors import cli
@@ -44,13 +44,19 @@ def test_labels_have_their_shapes_and_are_the_copies_true_j(labels):
         assert np.array_equal(oracle_costs(env, data["actions_mps"][i]), data["j_after"][i])
         assert data["j_before"][i] == coverage_cost(env.prefix, data["position_m"][i])
     assert np.isnan(data["value_costs"]).all()  # no map prior given
+    env = CoverageEnv(_scenario(0, 0, SimParams()))  # state 0: the start of rollout 0, as the robots see it
+    windows, near = critic_inputs(env.maps, local_views(env), env.params.comm_radius_m)
+    assert np.array_equal(data["x"][0], windows.astype(np.float16))
+    assert np.allclose(stored_neighbours(data)[0], near, atol=1e-6)
 
 
 def test_inputs_from_a_robots_window_and_neighbours():
     env = CoverageEnv(_scenario(0, 0, SimParams()))
     views = local_views(env)
-    x = critic_inputs(env.maps, views)
+    x, near = critic_inputs(env.maps, views, env.params.comm_radius_m)
     assert x.shape == (32, 5, 16, 16) and x.dtype == np.float32
+    assert near.shape == (32, 16, 3) and np.array_equal(near[:, :, 2].sum(1), np.minimum(views.valid.sum(1), 16))
+    assert (np.abs(near[:, :, :2]) <= 1.0).all()  # within r_c
     own = own_cell_fraction(views)
     assert ((own >= 0) & (own <= 1)).all()
     counts = neighbour_counts(views)
@@ -93,18 +99,19 @@ def test_the_critic_trains_saves_loads_and_selects(labels, tmp_path):
     loaded = load_critic(tmp_path / "critic.safetensors")
     assert loaded.record["train_envs"] == [0] and loaded.record["states"] == 2
     x = torch.from_numpy(data["x"][0].astype(np.float32))
+    near = torch.from_numpy(stored_neighbours(data)[0])
     with torch.no_grad():
-        assert all(torch.equal(a, b) for a, b in zip(net(x), loaded(x)))
+        assert all(torch.equal(a, b) for a, b in zip(net(x, near), loaded(x, near)))
     scores = predicted_scores(loaded, data)
     assert scores.shape == (4, 32, 3) and np.isfinite(scores).all()
     env = CoverageEnv(_scenario(0, 1, SimParams()))
     views = local_views(env)
     cand = np.random.default_rng(0).normal(size=(3, 32, 2))
-    kept = critic_select(cand, views, critic_inputs(env.maps, views), critic_predictor(loaded),
+    kept = critic_select(cand, views, critic_inputs(env.maps, views, 256.0), critic_predictor(loaded),
                          env.neighbour_view()[0], env.params, "team")
     assert any(np.array_equal(kept, c) for c in cand)  # team-wide: one whole copy
     with pytest.raises(SettingError, match="candidates_mps"):
-        critic_select(cand[:, :5], views, critic_inputs(env.maps, views), critic_predictor(loaded),
+        critic_select(cand[:, :5], views, critic_inputs(env.maps, views, 256.0), critic_predictor(loaded),
                       env.neighbour_view()[0], env.params)
 
 
@@ -140,9 +147,9 @@ def test_the_exported_critic_runs_without_torch_as_in_torch(labels, tmp_path):
     train(data, np.array([0]), tmp_path / "critic.safetensors", epochs=1, batch=2, log=lambda _: None)
     code, _ = cli("critic", "export", "--critic", tmp_path / "critic.safetensors", "--out", tmp_path / "critic.onnx")
     assert code == 0
-    x = data["x"][1].astype(np.float32)
-    mass, offset = onnx_predictor(tmp_path / "critic.onnx")(x)
-    mass_t, offset_t = critic_predictor(load_critic(tmp_path / "critic.safetensors"))(x)
+    x, near = data["x"][1].astype(np.float32), stored_neighbours(data)[1]
+    mass, offset = onnx_predictor(tmp_path / "critic.onnx")(x, near)
+    mass_t, offset_t = critic_predictor(load_critic(tmp_path / "critic.safetensors"))(x, near)
     assert np.allclose(mass, mass_t, rtol=1e-4, atol=1e-6) and np.allclose(offset, offset_t, atol=1e-3)
     with pytest.raises(InputError, match="not a loadable ONNX graph"):
         onnx_predictor(tmp_path / "missing.onnx")
