@@ -28,7 +28,7 @@ from madp.io.atomic import atomic_path
 from madp.robot.critic import CRITIC_CHANNELS, OFFSET_SCALE_M
 from madp.robot.prior import COARSE_M
 
-__all__ = ["Critic", "CriticConfig", "critic_predictor", "load_critic", "save_critic"]
+__all__ = ["Critic", "CriticConfig", "critic_env_select", "critic_predictor", "load_critic", "save_critic"]
 
 
 @dataclass(frozen=True)
@@ -126,3 +126,20 @@ def load_critic(path: Path) -> Critic:
     except Exception as e:
         raise InputError(f"{path}: not a critic file ({type(e).__name__})") from None
     return net.eval()
+
+
+def critic_env_select(env, candidates_mps: np.ndarray, net: Critic, scope: str = "team") -> np.ndarray:
+    """The swarm's kept actions ``[N, 2]`` among the joint copies ``candidates_mps [K, N, 2]`` of the
+    simulator's ``env`` (:class:`madp.sim.CoverageEnv`), as the robots would keep them with the critic
+    ``net`` (:func:`madp.robot.critic.critic_select` on every robot's :func:`madp.robot.choice.local_views`
+    row, ``scope`` one of :data:`madp.robot.critic.CRITIC_SCOPES`). A robot that holds no neighbour takes
+    its bounded Lloyd step instead, as under the other rules that read a robot's map
+    (:func:`madp.robot.choice.lone_steps`, on ``explore``'s map)."""
+    from madp.robot.choice import explore_prior, local_views, lone_steps
+    from madp.robot.critic import critic_inputs, critic_select
+
+    views = local_views(env)
+    chosen = critic_select(candidates_mps, views, critic_inputs(env.maps, views, env.params.comm_radius_m),
+                           critic_predictor(net), env.neighbour_view()[0], env.params, scope)
+    lone, steps = lone_steps(explore_prior(env, views), env.params)
+    return np.where(lone[:, None], steps, chosen)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from madp.errors import InputError, SettingError
-from madp.models.critic import Critic, critic_predictor, load_critic
+from madp.models.critic import critic_env_select, critic_predictor, load_critic
 from madp.policies.select import oracle_costs
 from madp.robot.choice import local_views
 from madp.robot.critic import (copy_scores, critic_choice, critic_inputs, critic_select, neighbour_counts,
@@ -110,6 +110,9 @@ def test_the_critic_trains_saves_loads_and_selects(labels, tmp_path):
     kept = critic_select(cand, views, critic_inputs(env.maps, views, 256.0), critic_predictor(loaded),
                          env.neighbour_view()[0], env.params, "team")
     assert any(np.array_equal(kept, c) for c in cand)  # team-wide: one whole copy
+    assert np.array_equal(critic_env_select(env, cand, loaded, "team"), kept)  # nobody is alone at the start
+    per_robot = critic_env_select(env, cand, loaded, "robot")
+    assert all(any(np.array_equal(per_robot[i], c[i]) for c in cand) for i in range(32))
     with pytest.raises(SettingError, match="candidates_mps"):
         critic_select(cand[:, :5], views, critic_inputs(env.maps, views, 256.0), critic_predictor(loaded),
                       env.neighbour_view()[0], env.params)
