@@ -70,6 +70,7 @@ def critic_rank_cmd(
     from madp.training.critic_fit import rank_study
 
     result = rank_study(data, critic)
+    result["command"] = " ".join(["madp critic rank", *(f"--data {p}" for p in data), f"--critic {critic}", f"--out {out}"])
     out.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out, result)
     for name, r in result["rules"].items():

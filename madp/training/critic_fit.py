@@ -197,20 +197,22 @@ def predicted_scores(net: Critic, data: dict, rows: np.ndarray | None = None) ->
     return np.stack(out)
 
 
-def true_cell_scores(data: dict) -> np.ndarray:
+def true_cell_scores(data: dict, equal_mass: bool = False) -> np.ndarray:
     """``[S, N, K]``: the copies' scores on each robot's true cell mass and centroid (what a perfect critic
-    predicts; reads the world map: a bound, not something robots could compute)."""
+    predicts; reads the world map: a bound, not something robots could compute). ``equal_mass``: every
+    cell's mass counted 1 (how much of the ranking the masses carry)."""
     from madp.robot.critic import copy_scores
 
     moves = data["moves"] if "moves" in data else state_moves(data)
-    return np.stack([copy_scores(data["mass"][s], data["centroid_m"][s] - data["position_m"][s],
+    mass = np.ones_like(data["mass"]) if equal_mass else data["mass"]
+    return np.stack([copy_scores(mass[s], data["centroid_m"][s] - data["position_m"][s],
                                  moves[s].transpose(1, 0, 2)) for s in range(len(data["env"]))])
 
 
 def rank_study(paths, critic_path: Path) -> dict:
     """:func:`ranking` of the critic in ``critic_path`` and of the baselines (``explore``'s and ``value``'s
-    local cell costs, and the true cells' scores as a bound) on the states of the labels files ``paths``
-    whose environments the critic was not trained on."""
+    local cell costs; the true cells' scores as a bound, and with every mass counted 1) on the states of
+    the labels files ``paths`` whose environments the critic was not trained on."""
     from madp.models.critic import load_critic
     from madp.training.critic import load_many, world_prefix
 
@@ -225,6 +227,7 @@ def rank_study(paths, critic_path: Path) -> dict:
     if np.isfinite(data["value_costs"]).all():
         rules["value"] = data["value_costs"]
     rules["true_cell"] = true_cell_scores(data)
+    rules["true_centroid_equal_mass"] = true_cell_scores(data, equal_mass=True)
     j = data["j_after"]
     return {"held_out_envs": [int(e) for e in np.unique(data["env"])], "states": int(len(j)),
             "oracle_gain_over_mean_rel": float(np.mean((j.mean(1) - j.min(1)) / data["j_before"])),
