@@ -39,7 +39,8 @@ def critic_collect_cmd(
 def critic_train_cmd(
     data: List[Path] = typer.Option(..., help="Labels files from madp critic collect (repeat for several)."),
     out: Path = typer.Option(..., help="The critic file to write (.safetensors)."),
-    held_out: float = typer.Option(0.25, help="The share of the environments (the last ones) left out of training."),
+    held_out: float = typer.Option(0.25, help="The share of the environments (the last ones) left out of training "
+                                   "(0: all of them train; rank on other files)."),
     epochs: int = typer.Option(30, min=1, help="Passes over the training states."),
     rank_weight: float = typer.Option(1.0, min=0.0, help="Weight of the copies' ranking loss beside the cell loss."),
     seed: int = typer.Option(0, min=0, help="Seed of the initial weights and the batches."),

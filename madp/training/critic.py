@@ -217,10 +217,13 @@ def load_many(paths) -> tuple[dict, dict]:
 
 def split_envs(env: np.ndarray, held_out: float) -> tuple[np.ndarray, np.ndarray]:
     """The environments of ``env`` (one index per state) split into (training, held out): the last
-    ``held_out`` share of them, in index order, held out (at least one of each)."""
-    if isinstance(held_out, bool) or not isinstance(held_out, (int, float)) or not 0.0 < held_out < 1.0:
-        raise SettingError("held_out", f"expected a share strictly between 0 and 1, got {held_out!r}")
+    ``held_out`` share of them, in index order, held out (at least one of each unless ``held_out`` is 0:
+    then all train, and other files' environments are the held-out ones)."""
+    if isinstance(held_out, bool) or not isinstance(held_out, (int, float)) or not 0.0 <= held_out < 1.0:
+        raise SettingError("held_out", f"expected a share in [0, 1), got {held_out!r}")
     envs = np.unique(env)
+    if held_out == 0:
+        return envs, envs[:0]
     if len(envs) < 2:
         raise SettingError("held_out", f"expected labels of at least 2 environments to hold some out, got {len(envs)}")
     n_held = min(len(envs) - 1, max(1, int(round(len(envs) * held_out))))

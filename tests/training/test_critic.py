@@ -138,6 +138,7 @@ def test_bad_input_gets_one_line_errors(labels, tmp_path):
     with pytest.raises(SettingError, match="scope"):
         critic_choice(np.zeros((2, 3)), np.zeros((2, 2), bool), "swarm")
     assert [list(e) for e in split_envs(np.array([0, 0, 1, 2, 3]), 0.25)] == [[0, 1, 2], [3]]
+    assert [list(e) for e in split_envs(np.array([0, 0, 1]), 0.0)] == [[0, 1], []]
     code, err = cli("critic", "train", "--data", tmp_path / "missing.npz", "--out", tmp_path / "c.safetensors")
     assert code != 0 and "not found" in err and len(err.strip().splitlines()) == 1
 
