@@ -41,8 +41,8 @@ def critic_train_cmd(
     out: Path = typer.Option(..., help="The critic file to write (.safetensors)."),
     held_out: float = typer.Option(0.25, help="The share of the environments (the last ones) left out of training "
                                    "(0: all of them train; rank on other files)."),
-    epochs: int = typer.Option(30, min=1, help="Passes over the training states."),
-    rank_weight: float = typer.Option(1.0, min=0.0, help="Weight of the copies' ranking loss beside the cell loss."),
+    epochs: int = typer.Option(12, min=1, help="Passes over the training states."),
+    rank_weight: float = typer.Option(3.0, min=0.0, help="Weight of the copies' ranking loss beside the cell loss."),
     seed: int = typer.Option(0, min=0, help="Seed of the initial weights and the batches."),
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:

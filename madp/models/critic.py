@@ -36,7 +36,7 @@ class CriticConfig:
     """The network's width, its dilations (one 3 × 3 residual layer each), the window's coarse cells per
     side and the mass unit (the training data's mean cell mass)."""
 
-    channels: int = 24
+    channels: int = 16
     dilations: tuple[int, ...] = (1, 2, 4, 8, 1)
     cells: int = 16
     mass_unit: float = 1.0

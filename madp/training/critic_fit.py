@@ -137,8 +137,8 @@ def _losses(net: Critic, b: dict[str, torch.Tensor], g: int) -> tuple[torch.Tens
     return cell, rank
 
 
-def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 30, batch: int = 8, lr: float = 2e-3,
-          rank_weight: float = 1.0, seed: int = 0, config: CriticConfig | None = None, record: dict | None = None,
+def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch: int = 8, lr: float = 2e-3,
+          rank_weight: float = 3.0, seed: int = 0, config: CriticConfig | None = None, record: dict | None = None,
           log=print) -> Critic:
     """Fit a critic to the states of ``data`` (:func:`madp.training.critic.load_labels`) whose
     environment is in ``train_envs``, and write it to ``out`` (:func:`madp.models.critic.save_critic`).
