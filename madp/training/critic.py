@@ -31,6 +31,7 @@ import torch
 
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path
+from madp.io.npz import load_npz
 from madp.policies.select import oracle_costs, value_views
 from madp.robot.choice import explore_prior, local_cell_costs, local_views
 from madp.robot.critic import critic_inputs
@@ -159,20 +160,8 @@ def collect(out: Path, num_envs: int, every: int = 25, steps: int = 600, copies:
 def load_labels(path: Path) -> tuple[dict, dict]:
     """The arrays and settings of a labels file from :func:`collect`; one-line errors for a missing,
     foreign or damaged one."""
-    path = Path(path)
-    try:
-        with np.load(path) as z:
-            data = {k: z[k] for k in (*FIELDS, "env", "step")}
-            meta = json.loads(str(z["meta"]))
-    except FileNotFoundError:
-        raise InputError(f"{path}: not found; make it with madp critic collect") from None
-    except Exception as e:  # a truncated or foreign file: zipfile's, numpy's or json's errors
-        raise InputError(f"{path}: not a critic labels file ({type(e).__name__})") from None
-    if meta.get("format") != FORMAT:
-        raise InputError(f"{path}: labels format {meta.get('format')!r}, expected {FORMAT}")
-    if not all(np.isfinite(data[k]).all() for k in ("x", "actions_mps", "j_after", "mass", "centroid_m")):
-        raise InputError(f"{path}: the labels hold NaN or infinity")
-    return data, meta
+    return load_npz(path, (*FIELDS, "env", "step"), "a critic labels file", "madp critic collect", FORMAT,
+                    ("x", "actions_mps", "j_after", "mass", "centroid_m"))
 
 
 def stored_neighbours(data: dict, comm_radius_m: float | None = None) -> np.ndarray:
