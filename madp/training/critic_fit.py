@@ -78,16 +78,26 @@ def gain_share(j_after: np.ndarray, j_kept: np.ndarray) -> tuple[np.ndarray, flo
     return per_state, float((mean - j_kept).sum() / (mean - best).sum())
 
 
+def _env_se(per_state: np.ndarray, env: np.ndarray) -> float:
+    """The standard error of a mean over states, from the spread of the environments' own means (the
+    states of one rollout are not independent): their standard deviation over √(environments)."""
+    means = np.array([np.nanmean(per_state[env == e]) for e in np.unique(env)])
+    means = means[np.isfinite(means)]
+    return float(means.std(ddof=1) / np.sqrt(len(means))) if len(means) > 1 else float("nan")
+
+
 def ranking(data: dict, scores: np.ndarray, prefixes: dict[int, ColumnPrefix], params: SimParams | None = None) -> dict:
     """How per-robot copy scores ``scores [S, N, K]`` (lower is better) rank the copies of the states of
     ``data``: the mean Spearman correlation of their team sums with the true J after the step, and per
     scope of :data:`madp.robot.critic.CRITIC_SCOPES` the share of ``oracle``'s gain (:func:`gain_share`)
-    its kept actions keep (their true J from ``prefixes``: environment index -> the world's prefix table)."""
+    its kept actions keep (their true J from ``prefixes``: environment index -> the world's prefix table);
+    each mean over states with its standard error across environments (``_se``) and, for the shares, the
+    ratio of the summed gains (``_pooled``)."""
     params = params or SimParams()
     j = data["j_after"]
     rho = spearman(scores.sum(1), j)
-    out = {"states": int(len(j)), "spearman_team": float(np.nanmean(rho)),
-           "spearman_team_se": float(np.nanstd(rho) / np.sqrt(max(1, np.isfinite(rho).sum())))}
+    out = {"states": int(len(j)), "environments": int(len(np.unique(data["env"]))),
+           "spearman_team": float(np.nanmean(rho)), "spearman_team_se": _env_se(rho, data["env"])}
     for scope in CRITIC_SCOPES:
         kept = np.empty(len(j))
         for s in range(len(j)):
@@ -100,7 +110,7 @@ def ranking(data: dict, scores: np.ndarray, prefixes: dict[int, ColumnPrefix], p
             kept[s] = coverage_cost(prefixes[int(data["env"][s])], pos)
         per_state, pooled = gain_share(j, kept)
         out[f"gain_share_{scope}"] = float(np.nanmean(per_state))
-        out[f"gain_share_{scope}_se"] = float(np.nanstd(per_state) / np.sqrt(max(1, np.isfinite(per_state).sum())))
+        out[f"gain_share_{scope}_se"] = _env_se(per_state, data["env"])
         out[f"gain_share_{scope}_pooled"] = pooled
     return out
 
