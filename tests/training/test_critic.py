@@ -64,6 +64,22 @@ def test_inputs_from_a_robots_window_and_neighbours():
     assert np.array_equal(counts.sum((1, 2)), (views.valid & inside.all(-1)).sum(1))
 
 
+def test_own_cell_and_neighbours_on_a_hand_made_window():
+    from madp.robot.choice import LocalViews
+    from madp.robot.critic import neighbour_features
+
+    # a 32 m window (8 blocks of 4 m, 2 coarse cells of 16 m), the robot at (16, 16), a neighbour at
+    # (24, 16): the bisector x = 20 leaves the robot the first coarse column and 1 of 4 blocks of the second
+    views = LocalViews(np.array([[16.0, 16.0]]), np.zeros((1, 2)), np.zeros((1, 8, 8)), np.zeros((1, 2)),
+                       np.array([[[24.0, 16.0], [500.0, 0.0]]]), np.array([[True, True]]))
+    assert np.allclose(own_cell_fraction(views), [[[1.0, 1.0], [0.25, 0.25]]])
+    assert np.array_equal(neighbour_counts(views), [[[0.0, 0.0], [0.0, 1.0]]])  # the far one is outside
+    near = neighbour_features(np.array([[[10.0, 0.0], [-300.0, 0.0], [5.0, 5.0]]]), np.array([[True, False, True]]),
+                              100.0)
+    assert near.shape == (1, 16, 3)
+    assert np.allclose(near[0, :3], [[0.05, 0.05, 1.0], [0.1, 0.0, 1.0], [0.0, 0.0, 0.0]]) and not near[0, 2:].any()
+
+
 def test_scores_choices_and_ranking_numbers_on_a_hand_made_example():
     # M (|δ − d|² − |d|²): mass 2, centroid 1 m along x; a move of 1 m toward it gains 2, staying 0.
     s = copy_scores(np.array([2.0]), np.array([[1.0, 0.0]]), np.array([[[1.0, 0.0], [0.0, 0.0], [-1.0, 0.0]]]))
