@@ -2,7 +2,7 @@
 :func:`madp.training.critic.collect`, and judging it by how it ranks the copies.
 
 :func:`train` (``madp critic train``): the states of the environments in ``train_envs`` (the rest are
-held out by the caller). Two losses, summed:
+held out by the caller). Two losses, the second weighted by ``rank_weight`` (3 unless told):
 
 * the cell's mass and centroid, per robot: the squared error of the log mass and of the centroid's
   offset (in units of :data:`madp.robot.critic.OFFSET_SCALE_M`), each robot weighted by its share of
