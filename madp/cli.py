@@ -323,8 +323,10 @@ def _add_commands() -> None:
     from madp.commands.report import report_cmd  # madp eval report: the documentation's results tables
     from madp.commands.swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
     from madp.commands.value import value_app  # madp value: the value rule's learned map prior
+    from madp.commands.critic import critic_app  # madp critic: the learned critic of MADP's joint copies
     app.add_typer(bench_app, name="bench")
     app.add_typer(value_app, name="value")
+    app.add_typer(critic_app, name="critic")
     dataset_app.command("import")(dataset_import_cmd)
     eval_app.command("report")(report_cmd)
     app.command("swarm")(swarm_cmd)

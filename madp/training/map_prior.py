@@ -32,8 +32,9 @@ from safetensors.torch import save_file
 
 from madp.io.checksum import sha256_file
 from madp.datagen.plan import scenario_seed
-from madp.errors import InputError, SettingError
+from madp.errors import SettingError
 from madp.io.atomic import atomic_path
+from madp.io.npz import load_npz
 from madp.models.map_prior import MapPrior, MapPriorConfig, prior_targets
 from madp.models.symmetry import transform_image
 from madp.robot.choice import GRID_M, local_views
@@ -139,19 +140,8 @@ def collect(out: Path, num_envs: int, every: int = 20, steps: int = 600, seed: i
 
 
 def _load(path: Path) -> tuple[dict, dict]:
-    try:
-        with np.load(path) as z:
-            data = {k: z[k] for k in ("x", "y", "w", "env")}
-            meta = json.loads(str(z["meta"]))
-    except FileNotFoundError:
-        raise InputError(f"{path}: not found; make it with madp value collect") from None
-    except Exception as e:  # a truncated or foreign file: zipfile's, numpy's or json's errors
-        raise InputError(f"{path}: not a map-prior examples file ({type(e).__name__})") from None
-    if meta.get("format") != FORMAT:
-        raise InputError(f"{path}: examples format {meta.get('format')!r}, expected {FORMAT}")
-    if not all(np.isfinite(data[k]).all() for k in ("x", "y", "w")):
-        raise InputError(f"{path}: the examples hold NaN or infinity")
-    return data, meta
+    return load_npz(path, ("x", "y", "w", "env"), "a map-prior examples file", "madp value collect", FORMAT,
+                    ("x", "y", "w"))
 
 
 def explore_mean(x: torch.Tensor) -> torch.Tensor:
