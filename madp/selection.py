@@ -102,6 +102,8 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("value_explore_joint", "value_joint with explore's mean as a floor", "own map", _value_floor, prior=True,
          joint=True),
     Rule("oracle", "the joint sample of least true J after the step", "world"),
+    Rule("oracle_hood", "oracle per neighbourhood: the copy of least true J summed over its robots' whole cells",
+         "world", joint=True),
     Rule("oracle_cell", "explore's choice on the true map", "true map"),
     Rule("oracle_joint", "value_joint's choice on the true map", "true map", joint=True),
 )}

@@ -6,7 +6,8 @@ action). The rules, their help and what each reads are records (:data:`madp.sele
 torch-free: the robot runtime chooses with the same code); the documentation's table of them is
 ``docs/concepts/sampling.md``. Here the simulator's side: every robot's view at once
 (:func:`local_views` of the environment; the true map in each window for the bounds that read it), the
-true J of each joint sample for ``oracle`` (:func:`oracle_costs`, which reads the world), and the
+true J of each joint sample for ``oracle`` (:func:`oracle_costs`, which reads the world), each robot's
+true cell cost of each for ``oracle_hood`` (:func:`oracle_cell_costs`), and the
 neighbourhoods of the ``joint`` rules from the environment's links.
 """
 
@@ -15,13 +16,13 @@ from __future__ import annotations
 import numpy as np
 
 from madp.errors import SettingError
-from madp.robot.choice import GRID_M, LocalViews, explore_prior, local_cell_costs, local_views
+from madp.robot.choice import GRID_M, LocalViews, explore_prior, joint_copy, local_cell_costs, local_views
 from madp.selection import choose, rule, weigh
 from madp.sim.env import CoverageEnv, move
-from madp.sim.voronoi import coverage_cost
+from madp.sim.voronoi import coverage_cost, world_sums
 
-__all__ = ["GRID_M", "LocalViews", "explore_prior", "local_cell_costs", "local_views", "oracle_costs", "predictor_of",
-           "select_actions"]
+__all__ = ["GRID_M", "LocalViews", "explore_prior", "local_cell_costs", "local_views", "oracle_cell_costs", "oracle_costs",
+           "predictor_of", "select_actions"]
 
 
 def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
@@ -30,6 +31,13 @@ def oracle_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
     left as it is. Reads the whole world map: an oracle, not something robots could compute."""
     pos, _ = move(env.start_m, env.offset_m, actions_mps, env.params)
     return np.array([coverage_cost(env.prefix, p) for p in pos])
+
+
+def oracle_cell_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
+    """Each robot's true cost of its whole Voronoi cell on the world map after one step of each joint
+    sample ``actions_mps [K, N, 2]``: ``[N, K]``; column k sums to :func:`oracle_costs`' entry k."""
+    pos, _ = move(env.start_m, env.offset_m, actions_mps, env.params)
+    return np.stack([world_sums(env.prefix, p, True, with_centroids=False).cost for p in pos], 1)
 
 
 def predictor_of(map_prior):
@@ -48,9 +56,12 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
     bounds that read it) weighed by the rule, ``map_prior`` (:class:`madp.models.map_prior.MapPrior`)
     for the rules that need one."""
     r = rule(select)
+    per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
+    if r.sees == "world" and r.joint:  # each neighbourhood's copy of least true J over its robots' cells
+        index = joint_copy(oracle_cell_costs(env, candidates_mps), env.neighbour_view()[0])
+        return np.take_along_axis(per_robot, index[:, None, None], 1)[:, 0]
     if r.sees == "world":
         return candidates_mps[int(np.argmin(oracle_costs(env, candidates_mps)))]
-    per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if not r.ranks:
         return choose(r, per_robot, None, env.params)[0]
     if r.prior and map_prior is None:

@@ -29,10 +29,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from madp.selection import DEFAULT_CANDIDATES, DEFAULT_RULE
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path
 from madp.io.npz import load_npz
-from madp.policies.select import oracle_costs, value_views
+from madp.policies.select import oracle_costs, predictor_of
+from madp.robot.prior import value_view
 from madp.robot.choice import explore_prior, local_cell_costs, local_views
 from madp.robot.critic import critic_inputs
 from madp.sim import CoverageEnv, SimParams
@@ -75,7 +77,7 @@ def state_record(env: CoverageEnv, copies_mps: np.ndarray, map_prior=None) -> di
     per_robot = copies_mps.transpose(1, 0, 2)
     sums = voronoi_sums(env.prefix, env.positions_m, with_cost=False)
     explore = local_cell_costs(explore_prior(env, views), per_robot, env.params)
-    value = (local_cell_costs(value_views(env, views, map_prior), per_robot, env.params) if map_prior is not None
+    value = (local_cell_costs(value_view(env.maps, views, predictor_of(map_prior)), per_robot, env.params) if map_prior is not None
              else np.full_like(explore, np.nan))
     windows, _ = critic_inputs(env.maps, views, env.params.comm_radius_m)  # the neighbours' part: stored_neighbours
     return {"x": windows, "actions_mps": copies_mps, "j_before": env.cost(),
@@ -148,7 +150,7 @@ def collect(out: Path, num_envs: int, every: int = 25, steps: int = 600, copies:
                 env_ids.append(idx[b]), step_ids.append(t)
             bar.advance(task, len(idx))
     meta = {"format": FORMAT, "num_envs": num_envs, "first": first, "every": every, "steps": steps, "copies": copies,
-            "seed": seed, "policy": str(policy or "shipped"), "prior": prior, "select": "explore", "candidates": 4,
+            "seed": seed, "policy": str(policy or "shipped"), "prior": prior, "select": DEFAULT_RULE, "candidates": DEFAULT_CANDIDATES,
             "states": len(env_ids), "seconds": round(time.perf_counter() - t0, 1)}
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out, ".npz") as tmp:

@@ -278,9 +278,9 @@ def test_oracle_joint_is_the_joint_choice_on_the_true_map():
     (["eval", "--candidates", "0", "--select", "explore"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--select", "none", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (explore, value, value_explore, value_joint, value_explore_joint, oracle, oracle_cell, oracle_joint), got select none"),
+                                    "among them (explore, value, value_explore, value_joint, value_explore_joint, oracle, oracle_hood, oracle_cell, oracle_joint), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, explore, value, "
-                                                        "value_explore, value_joint, value_explore_joint, oracle, oracle_cell, "
+                                                        "value_explore, value_joint, value_explore_joint, oracle, oracle_hood, oracle_cell, "
                                                         "oracle_joint, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
@@ -332,3 +332,20 @@ def test_choosing_among_samples_keeps_the_policy_equivariant(model, monkeypatch,
     prior's rule (a window block is explored when every cell of it is, read at its four corners) is
     what the symmetries keep; read at one cell per block, 8 of these 1008 choices differed."""
     assert _equivariance_misses(model, monkeypatch, select, seeds=seeds) == (0, 6 * 56 * len(seeds))
+
+
+def test_oracle_hood_keeps_each_neighbourhoods_copy_of_least_true_cell_cost():
+    """``oracle_hood``: each robot's true whole-cell costs sum to the copy's true J; with every robot in
+    one neighbourhood it keeps ``oracle``'s joint sample; a robot with no neighbour keeps the copy of
+    least true cost of its own cell; its neighbour pair keeps the copy of least summed cost."""
+    cands = _candidates(11, len(ROBOTS))
+    env = CoverageEnv(_scenario(ROBOTS))
+    cell = select_mod.oracle_cell_costs(env, cands)  # [N, K]
+    np.testing.assert_allclose(cell.sum(0), oracle_costs(env, cands), rtol=1e-12)
+    wide = CoverageEnv(_scenario(ROBOTS, SimParams(num_robots=len(ROBOTS), num_features=3, comm_radius_m=2000.0)))
+    np.testing.assert_array_equal(select_actions("oracle_hood", wide, cands), select_actions("oracle", wide, cands))
+    kept = select_actions("oracle_hood", env, cands)
+    pair = (cell[0] + cell[1]).argmin()
+    for i, k in ((0, pair), (1, pair), (2, cell[2].argmin()), (3, cell[3].argmin()), (4, cell[4].argmin())):
+        np.testing.assert_array_equal(kept[i], cands[k, i])
+    assert RULES["oracle_hood"].bound and RULES["oracle_hood"].joint
