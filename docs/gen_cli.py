@@ -26,7 +26,7 @@ def commands():
     import typer
 
     from madp.cli import app
-    from madp.cli_main import _click
+    from madp.commands.main import _click
 
     click = _click()  # click as typer runs it
     root = typer.main.get_command(app)

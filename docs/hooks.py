@@ -25,7 +25,7 @@ def on_pre_build(config, **kwargs) -> None:
     spec.loader.exec_module(gen)
     if gen.PAGE.read_text(encoding="utf-8") != gen.render():
         _fail(f"{gen.PAGE} differs from the command line: run python docs/gen_cli.py")
-    from madp.eval.results_pages import load_kept, render, update_pages
+    from madp.results.pages import load_kept, render, update_pages
 
     stale = update_pages([DOCS.parent / "README.md", DOCS], render(load_kept(DOCS / "results")), check=True)
     if stale:

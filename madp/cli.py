@@ -1,6 +1,6 @@
 """``madp``: the command line. Thin commands: each parses its options, calls one function of the
 layers and prints the result. A user's mistake ends in one line ``madp: error: …`` naming the flag or
-file (exit status 2), a bug in its traceback and a request for a report (exit status 1): :mod:`madp.cli_main`.
+file (exit status 2), a bug in its traceback and a request for a report (exit status 1): :mod:`madp.commands.main`.
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from typing import List, Optional, Tuple
 
 import typer
 
-from madp.cli_main import ray_option
+from madp.commands.main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
+from madp.selection import select_help
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
@@ -27,8 +28,24 @@ dataset_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Ins
 scenario_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None, help="Scenario files.")
 app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
-# MADP's choice among K samples per robot (madp.policies.select), on madp rollout and madp eval.
-SELECT = typer.Option(None, help="MADP: keep one of --candidates K samples per robot (default: explore; docs/concepts/sampling.md): none (one sample per robot, MADP's plain sampling) | oracle (the joint sample of lowest true J after the step: an upper bound, not a controller robots could run) | cell (each robot: lowest cost of its own Voronoi cell on its own map) | mppi (each robot: the mean weighted by exp(-cost/λ)) | medoid (each robot: its most typical sample) | explore (cell, with what it has not explored counted at the mean importance of what it has) | oracle_cell (cell on the true map: an upper bound for cell, not runnable) | value (explore with the policy file's learned map prior in place of the mean: madp value train) | value_explore (value, with explore's mean as a floor) | value_joint (value, one copy per neighbourhood: neighbours' costs of each copy summed) | value_explore_joint (value_joint with explore's floor) | oracle_joint (value_joint on the true map: an upper bound, not runnable).")
+
+
+def _version(value: bool) -> None:
+    if value:
+        from madp.versions import version_line
+
+        typer.echo(version_line())
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print madp's and torch's versions, torch's build (CPU only or CUDA) and the GPU it sees, then exit.")) -> None:
+    """The options before a command (``madp --version``)."""
+
+
+# MADP's choice among K samples per robot (madp.selection's records), wherever MADP samples.
+SELECT = typer.Option(None, help=select_help())
 CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
@@ -50,7 +67,7 @@ def rollout(
     runtime: str = typer.Option("torch", help="How MADP (decentralized) runs: torch (the PyTorch policy) | onnx (every robot through the files of madp export and the torch-free robot runtime, each robot's starting noise its own, as a robot process draws it: the one-process reference of madp swarm; docs/guides/export.md)."),
 ) -> None:
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
-    from madp.cli_rollout import run_rollout
+    from madp.commands.rollout import run_rollout
 
     run_rollout(scenario, controller, checkpoint, seed, steps, out, video, device, select, candidates, network, record,
                 record_format, runtime)
@@ -191,6 +208,7 @@ def eval_cmd(
     ctx: typer.Context,
     suite: str = typer.Option("uniform", help="uniform | sigma | cities | launch | scale | all, or a comma-separated list (uniform,cities); symmetry (the launch layouts' rotations and reflections) runs by name only"),
     num_envs: int = typer.Option(50, min=1, help="Environments per group (cities: at most this many cities)."),
+    paired_se: Optional[float] = typer.Option(None, help="Run each suite's first environments, as many (at most --num-envs) as a paired difference of MADP needs for this standard error (e.g. 0.01; docs/guides/evaluation.md)."),
     groups: Optional[str] = typer.Option(None, help="Run only these groups of the suite, comma-separated (e.g. N32_F128 of scale, line of launch); default: all."),
     steps: int = typer.Option(600, min=1, help="Control steps per rollout."),
     controllers: Optional[str] = typer.Option(None, help=f"Comma-separated subset of {','.join(NAMES)} (default: {','.join(DEFAULT)}, those with a checkpoint); KIND:NAME=PATH adds a learned controller with its own checkpoint, e.g. madp:r4=runs/r4/policy.safetensors (shown as madp:r4)."),
@@ -233,7 +251,7 @@ def eval_cmd(
                      madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
                      named=tuple(named.items()), groups=tuple(g.strip() for g in groups.split(",")) if groups else (),
-                     runtime=runtime)
+                     runtime=runtime, paired_se=paired_se)
     cfg, used = available_controllers(cfg, requested, explicit=controllers is not None)
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)
@@ -248,10 +266,11 @@ def eval_compare_cmd(
     runs: List[str] = typer.Argument(..., metavar="RUN", help="Two or more finished suite directories of madp eval (OUT/<suite>/), each PATH or NAME=PATH."),
     baseline: Optional[str] = typer.Option(None, help="The run the others are compared with: a name or a path (default: the first)."),
     out: Optional[Path] = typer.Option(None, help="Where compare.md, compare.json and compare.png go (default runs/compare/<suite>)."),
+    shared: bool = typer.Option(False, help="Pair on the environments every run holds (a --paired-se run against a full one)."),
 ) -> None:
     """Compare evaluations of one suite on the same environments: each run's mean, the paired difference to the baseline (SE, 95% interval) and wins k/n per controller and group."""
     from madp.eval.compare import compare_runs, load_runs, markdown, write_compare
-    cmp = compare_runs(load_runs(runs), baseline)
+    cmp = compare_runs(load_runs(runs), baseline, shared=shared)
     files = write_compare(cmp, out or Path("runs/compare") / cmp["suite"])
     typer.echo(markdown(cmp))
     typer.echo(f"-> {', '.join(str(p) for p in files.values())}")
@@ -288,7 +307,7 @@ def scenario_import_cmd(
     peak: Tuple[float, float] = typer.Option((0.6, 1.0), help="Peak-height range."),
 ) -> None:
     """Turn traffic-signal locations into a scenario file (the 1024 m square with the most signals)."""
-    from madp.eval.cities import city_scenario
+    from madp.cities.importer import city_scenario
     from madp.sim import SimParams
 
     sc, src = city_scenario(source, seed, SimParams(num_robots=num_robots, sigma_range_m=sigma, peak_range=peak))
@@ -299,11 +318,11 @@ def scenario_import_cmd(
 
 def _add_commands() -> None:
     """The commands kept in modules of their own, so this one stays small."""
-    from madp.cli_bench import bench_app  # the benchmark commands (madp bench ...)
-    from madp.cli_data import dataset_import_cmd  # madp dataset import: a run's log back into data
-    from madp.cli_report import report_cmd  # madp eval report: the documentation's results tables
-    from madp.cli_swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
-    from madp.cli_value import value_app  # madp value: the value rule's learned map prior
+    from madp.commands.bench import bench_app  # the benchmark commands (madp bench ...)
+    from madp.commands.data import dataset_import_cmd  # madp dataset import: a run's log back into data
+    from madp.commands.report import report_cmd  # madp eval report: the documentation's results tables
+    from madp.commands.swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
+    from madp.commands.value import value_app  # madp value: the value rule's learned map prior
     app.add_typer(bench_app, name="bench")
     app.add_typer(value_app, name="value")
     dataset_app.command("import")(dataset_import_cmd)
@@ -315,9 +334,9 @@ _add_commands()
 
 
 def main(argv: Optional[List[str]] = None) -> None:
-    """Entry point (:func:`madp.cli_main.run`): a user's mistake is one line, exit status 2; a bug its
+    """Entry point (:func:`madp.commands.main.run`): a user's mistake is one line, exit status 2; a bug its
     traceback and a request to report it, exit status 1."""
-    from madp.cli_main import run
+    from madp.commands.main import run
 
     run(app, sys.argv[1:] if argv is None else argv)
 

@@ -245,9 +245,9 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
     model = load_model(info.kind, path, device)
     if not info.samples:
         return build(model, device)
-    from madp.policies.select import VALUE_RULES
+    from madp.selection import RULES
 
-    if sampling is not None and sampling.select in VALUE_RULES:
+    if sampling is not None and RULES[sampling.select].prior:
         from madp.policies.checkpoint import load_map_prior
 
         prior = load_map_prior(path, device)

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# Set up madp in ./.venv and run the whole pipeline on small defaults (a few minutes on 2 CPU cores):
-# generate a small expert dataset, train MADP and LPAC-K3 for one short epoch, evaluate them beside the shipped
-# checkpoints on 2 environments, and say in words what the table shows.
+# Set up madp in ./.venv and run the whole pipeline on small defaults (a few minutes on 2 CPU cores, after the
+# install): generate a small expert dataset, train MADP and LPAC-K3 for one short epoch, evaluate them beside the
+# shipped checkpoints on 2 environments, and say in words what the table shows.
+# Which torch it installs: MADP_TORCH_INDEX and MADP_TORCH (scripts/setup_venv.sh), e.g. on a CPU-only machine
+#   MADP_TORCH_INDEX=https://download.pytorch.org/whl/cpu bash scripts/quickstart.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
-python3 -m venv .venv
-.venv/bin/pip install -q torch==2.13.0 uv==0.13.8   # pip: the CPU torch on this disk; uv: the rest, in seconds
-.venv/bin/uv pip install --python .venv/bin/python -q -e . torch==2.13.0
+bash scripts/setup_venv.sh
 rm -rf runs/quickstart-madp runs/quickstart-lpac
 .venv/bin/madp datagen --n 2000 --out data/quickstart --overwrite
 .venv/bin/madp train --model madp --data data/quickstart --out runs/quickstart-madp --epochs 1 --max-steps-per-epoch 30

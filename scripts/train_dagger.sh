@@ -5,7 +5,7 @@
 # relabelled set so far (each relabelled set x4 per epoch). docs/reports/2026-12-03-relabelling.md has what each round bought.
 # Run from the repository root with MADP0/LPAC0 pointing at round-0 policies (LPAC-K3's is trained if missing).
 set -euo pipefail
-DATA=${DATA:-/work/data100k}
+DATA=${DATA:-data/expert-100k}
 MADP_ROUNDS=${MADP_ROUNDS:-2}
 LPAC_ROUNDS=${LPAC_ROUNDS:-1}
 MADP0=${MADP0:-runs/madp-cpu/checkpoints/best/policy.safetensors}

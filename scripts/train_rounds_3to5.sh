@@ -6,7 +6,7 @@
 # ~25 + ~25 + ~45 min of training and ~45 min of relabelling rollouts on one thread each.
 # DATA and the round-1/2 relabelled sets as scripts/train_shipped.sh made them; MADP2 the round-2 policy.
 set -euo pipefail
-DATA=${DATA:-/work/data100k}
+DATA=${DATA:-data/expert-100k}
 MADP2=${MADP2:-runs/madp-r2/checkpoints/best/policy.safetensors}
 R3=runs/madp-r3/checkpoints/best/policy.safetensors
 R4=runs/madp-r4/checkpoints/best/policy.safetensors

@@ -13,7 +13,7 @@
 # (madp.eval.suites). Relabelling ~20 + ~25 + ~10 min, training ~35 + ~15 + ~30 min, one thread each.
 # R5: the round-5 policy (scripts/train_rounds_3to5.sh). ROUNDS: the last round to run (6, 7 or 8).
 set -euo pipefail
-D=${DATA6:-/work/data}
+D=${DATA6:-data}
 R5=${R5:-runs/madp-r5/checkpoints/best/policy.safetensors}
 ROUNDS=${ROUNDS:-8}
 best() { echo "runs/madp-r$1/checkpoints/best/policy.safetensors"; }

@@ -8,7 +8,7 @@
 # About 9 h on 2 cores end to end.
 # Results do not depend on running the two trainings side by side or one after the other.
 set -euo pipefail
-DATA=${DATA:-/work/data100k}
+DATA=${DATA:-data/expert-100k}   # the expert dataset (and, beside it, the relabelled sets); DATA=PATH puts them elsewhere
 [ -f "$DATA/manifest.json" ] || .venv/bin/madp datagen --n 100000 --seed 0 --out "$DATA" --workers 2   # ~30 min
 # Round 0, MADP: 24 x 1000 steps x 32 samples (768k samples, ~11 passes over the 70k training split), ~100 min on one thread.
 [ -f runs/madp-cpu/checkpoints/best/policy.safetensors ] || .venv/bin/madp train --model madp --preset cpu --data "$DATA" \

@@ -3,7 +3,7 @@
 The reference data ships inside the repository, so a clone anywhere runs every test: the Coverage
 Control Library's reference vectors in ``tests/data/vectors`` (``tests/data/README.md`` says how they
 were made) and the 40 cities' traffic-signal files that madp itself ships
-(``madp/eval/data/cities``). Use the ``vectors_dir`` / ``cities_dir`` fixtures (or the ``VECTORS`` /
+(``madp/cities/data``). Use the ``vectors_dir`` / ``cities_dir`` fixtures (or the ``VECTORS`` /
 ``CITIES`` paths), never a path of your own; a missing directory fails the test that needs it, naming it.
 """
 
@@ -22,7 +22,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data"
 VECTORS = DATA / "vectors"
-CITIES = REPO / "madp" / "eval" / "data" / "cities"  # madp.eval.suites.default_cities_dir()
+CITIES = REPO / "madp" / "cities" / "data"  # madp.eval.suites.default_cities_dir()
 
 
 @contextlib.contextmanager

@@ -29,9 +29,9 @@ def test_the_registry_is_the_one_list_of_names():
 def test_settings_are_the_sampler_settings_of_a_controller_that_samples():
     from madp.policies import SamplingSettings
 
-    s = SamplingSettings("ddim", 7, 0.5, True, select="mppi", candidates=4)
+    s = SamplingSettings("ddim", 7, 0.5, True, select="oracle_cell", candidates=4)
     assert CONTROLLERS["madp_central"].settings(s) == {"sampler": "ddim", "sampling_steps": 7, "eta": 0.5,
-                                                       "fixed_noise": True, "frame": "d4", "select": "mppi",
+                                                       "fixed_noise": True, "frame": "d4", "select": "oracle_cell",
                                                        "candidates": 4, "precision": "fp32"}
     assert CONTROLLERS["lpac"].settings(s) == {} and CONTROLLERS["dcvt"].settings(s) == {}
 

@@ -82,6 +82,9 @@ def check_command_line(args: list[str]) -> list[str]:
     while hasattr(cmd, "commands") and rest and rest[0] in cmd.commands:
         path.append(rest[0])
         cmd = cmd.commands[rest.pop(0)]
+    group_options = {o for p in getattr(cmd, "params", []) for o in getattr(p, "opts", [])}
+    if hasattr(cmd, "commands") and rest and set(rest) <= group_options:  # a group's own option: madp --version
+        return problems
     if hasattr(cmd, "commands") and not getattr(cmd, "invoke_without_command", False):
         problems.append(f"{' '.join(path)}: expected one of {sorted(cmd.commands)}, got {rest[:1]}")
         return problems
@@ -115,7 +118,7 @@ def test_every_documented_command_line_exists_in_the_cli():
 def test_the_command_line_check_finds_what_does_not_exist():
     text = "```bash\nmadp eval --suite uniform --no-such-option 3   # a comment --nor-this\n" \
            "madp evaluate --suite x && .venv/bin/madp eval compare a b --baseline a\n" \
-           "python -m madp.cli dataset\n```\n"
+           "python -m madp.cli dataset\nmadp --version && madp --verbose\n```\n"
     found = [madp_invocation(w) for w in shell_commands(text)]
     commands = sorted(typer.main.get_command(app).commands)
     assert {"datagen", "dataset", "eval", "train"} <= set(commands)
@@ -124,6 +127,8 @@ def test_the_command_line_check_finds_what_does_not_exist():
         [f"madp: expected one of {commands}, got ['evaluate']"],
         [],
         ["madp dataset: expected one of ['convert', 'import', 'info', 'merge', 'verify'], got []"],
+        [],
+        [f"madp: expected one of {commands}, got ['--verbose']"],
     ]
 
 
@@ -223,15 +228,23 @@ GUIDES = sorted((DOCS / "guides").glob("*.md"))
 
 @pytest.mark.parametrize("guide", GUIDES, ids=lambda p: p.name)
 def test_every_guide_opens_with_a_runnable_block_and_holds_no_history(guide):
-    """A guide is a how-to: its title, at most one paragraph, then a bash or python block; then H2
-    sections; no dates (what changed when belongs to the reports and CHANGELOG.md)."""
+    """A guide is a how-to: its title, then a bash or python block (its first command runs on a fresh
+    clone: tests/test_guides.py); then H2 sections; no dates (what changed when belongs to the reports
+    and CHANGELOG.md)."""
     text = guide.read_text(encoding="utf-8")
     lines = text.splitlines()
     assert lines[0].startswith("# "), "a guide starts with its title"
     first = next(i for i, line in enumerate(lines) if line.startswith("```"))
     before = "\n".join(lines[1:first]).strip()
     assert lines[first].strip() in ("```bash", "```python"), f"{guide.name}: its first block is {lines[first]!r}"
-    assert before.count("\n\n") == 0 and not before.startswith("#"), f"{guide.name}: more than a paragraph before its first block"
+    assert before == "", f"{guide.name}: prose before its first block"
     assert any(line.startswith("## ") for line in lines), f"{guide.name}: no H2 section"
     dates = [d for d in re.findall(r"\b20\d\d-\d\d-\d\d\b", re.sub(r"\]\([^)]*\)", "]", text))]
     assert not dates, f"{guide.name}: dated history {dates}; it belongs to a report or CHANGELOG.md"
+
+
+@pytest.mark.parametrize("page", sorted((DOCS / "concepts").glob("*.md")), ids=lambda p: p.name)
+def test_every_concept_page_is_in_sections(page):
+    """A concept page is read by its parts: at least two H2 sections."""
+    sections = [line for line in page.read_text(encoding="utf-8").splitlines() if line.startswith("## ")]
+    assert len(sections) >= 2, f"{page.name}: {len(sections)} H2 sections"

@@ -6,7 +6,7 @@ import tarfile
 
 import pytest
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.policies import shipped_checkpoint
 from madp.training.checkpoint import load_policy
 from tests.conftest import REPO, returned_files, run_script, script_results

@@ -13,6 +13,7 @@ import torch
 
 from madp.training.checkpoint import load_policy
 from tests.conftest import REPO, returned_files, run_script, script_results
+from tests.guides import first_commands
 
 SCRIPT = REPO / "scripts" / "gpu_paper.sh"
 TINY = ["--python", sys.executable, "--device", "cpu", "--no-cuda-tests",
@@ -26,6 +27,12 @@ TINY = ["--python", sys.executable, "--device", "cpu", "--no-cuda-tests",
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     return script_results(tmp_path_factory, SCRIPT, *TINY)
+
+
+def test_the_gpu_guide_opens_with_the_script_these_tests_run():
+    """docs/guides/gpu.md's first command is this script, which ``results`` runs at tiny sizes (on this
+    interpreter: installing is the one step it leaves out)."""
+    assert first_commands(REPO / "docs" / "guides" / "gpu.md") == [f"bash {SCRIPT.relative_to(REPO)} results/"]
 
 
 def test_results_fit_the_return_limits_and_record_the_run(results):

@@ -29,6 +29,35 @@ def test_modules_are_small_and_the_command_line_thin():
     assert len((MADP / "cli.py").read_text(encoding="utf-8").splitlines()) <= 350
 
 
+def test_no_top_level_room_holds_more_than_a_share_of_the_lines():
+    """Each top-level package (or module) of ``madp/`` holds at most 15 % of its Python lines: a room
+    that grows past that does more than one trade and is split."""
+    lines: dict[str, int] = {}
+    for p in MODULES:
+        top = p.relative_to(MADP).parts[0]
+        lines[top] = lines.get(top, 0) + len(p.read_text(encoding="utf-8").splitlines())
+    total = sum(lines.values())
+    big = {top: f"{n / total:.1%}" for top, n in lines.items() if n > 0.15 * total}
+    assert not big, f"top-level rooms over 15 % of madp/'s lines: {big}"
+
+
+def test_the_command_modules_live_in_one_package_beside_the_app():
+    """``madp/cli.py`` is the app; the command modules it gathers are in ``madp/commands/``, none beside it."""
+    assert not sorted(p.name for p in MADP.glob("cli_*.py"))
+    assert (MADP / "commands" / "main.py").is_file()
+
+
+def test_private_names_of_the_model_bench_stay_in_models():
+    """Outside ``madp/models/``, nothing imports a name starting with ``_`` from ``madp.models.bench``."""
+    for path in MODULES:
+        if path.is_relative_to(MADP / "models"):
+            continue
+        for node in ast.walk(_tree(path)):
+            if isinstance(node, ast.ImportFrom) and node.module == "madp.models.bench":
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                assert not private, f"{_rel(path)}:{node.lineno} imports {private} from madp.models.bench"
+
+
 def test_init_files_only_re_export():
     """A docstring, imports and ``__all__`` (and the package's ``__version__``); no other statement."""
     for path in MADP.rglob("__init__.py"):

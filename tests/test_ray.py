@@ -4,6 +4,7 @@ one-line error."""
 
 import logging
 import os
+import shlex
 import signal
 import sys
 import threading
@@ -13,12 +14,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from madp.cli_main import optional_ray_value
+from madp.commands.main import optional_ray_value
 from madp.data_schema.dataset import verify_dataset
 from madp.datagen import DatagenConfig, run_datagen
 from madp.io.atomic import is_temp
 from madp.sim import SimParams
-from tests.conftest import in_ci
+from tests.conftest import REPO, in_ci
+from tests.guides import first_commands, small
 from tests.test_reliability_errors import assert_one_line, cli
 
 #: Small swarms (2 robots, 2 features, 256 m world) in small shards: 400 samples in 20 shards (14 train, 4 val,
@@ -62,6 +64,17 @@ def test_datagen_on_ray_writes_the_local_bytes(cluster, tmp_path):
     assert code == 0, err
     assert tree_bytes(tmp_path / "ray") == local
     assert (tmp_path / "ray" / "train" / "shard-00000.mcap").stat().st_mtime_ns == kept
+
+
+def test_the_ray_guides_first_command_runs_on_a_fresh_clone(cluster, tmp_path, monkeypatch):
+    """docs/guides/ray.md opens with a one-machine run (at small sizes here, on the module's Ray)."""
+    [command] = first_commands(REPO / "docs" / "guides" / "ray.md")
+    words = shlex.split(small(command))
+    assert words[:2] == ["madp", "datagen"] and words[-1] == "--ray"
+    monkeypatch.chdir(tmp_path)
+    code, err = cli(*words[1:])
+    assert code == 0, err
+    assert verify_dataset(tmp_path / "data" / "ray") == 16
 
 
 def test_a_worker_killed_mid_shard_is_retried_with_the_same_bytes(cluster, tmp_path):

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from madp.policies.select import MAX_CANDIDATES
+from madp.selection import MAX_CANDIDATES
 from madp.training.map_prior import MAX_COLLECT_ENVS, MAX_COLLECT_STEPS
 from tests.test_reliability_errors import assert_one_line, cli, cli_subprocess
 

@@ -3,7 +3,7 @@
 Public API::
 
     SCHEMA_VERSION, DataError, Episode, SampleBatch, iter_episodes
-    Manifest, ShardInfo, SplitInfo, ActionStats, ActionStatsAccumulator, sha256_file
+    Manifest, ShardInfo, SplitInfo, ActionStats, ActionStatsAccumulator
     write_shard(path, episodes, fmt=None, **options) -> ShardInfo
     check_shard(path, shard_info) — size, sha256 (one streamed read) and counts before use
     iter_shard(path, fmt=None, batch_size=256) -> Iterator[SampleBatch]
@@ -22,7 +22,6 @@ from .manifest import (
     Manifest,
     ShardInfo,
     SplitInfo,
-    sha256_file,
 )
 from .mcap_codec import SAMPLE_TOPIC, McapShardInfo, read_mcap_info, read_mcap_shard, write_mcap_shard
 from .parquet_codec import read_parquet_info, read_parquet_shard, write_parquet_shard
@@ -82,7 +81,6 @@ __all__ = [
     "read_parquet_shard",
     "read_shard",
     "sample_shapes",
-    "sha256_file",
     "shard_format",
     "write_mcap_shard",
     "write_parquet_shard",

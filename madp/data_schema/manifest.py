@@ -27,7 +27,6 @@ the train split; they normalise actions for training and travel inside every che
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from typing import Any, Mapping, Optional, Union
 import numpy as np
 
 from madp.io.atomic import write_text_atomic
+from madp.io.checksum import sha256_file
 
 from .action_stats import ActionStats
 from .schema import SCHEMA_VERSION, DataError
@@ -55,21 +55,6 @@ def _code_version() -> str:
     from madp import __version__
 
     return __version__
-
-
-def sha256_file(path: PathLike, chunk_bytes: int = 8 << 20) -> str:
-    """Hex SHA-256 of a file's bytes, read in ``chunk_bytes`` pieces."""
-    h = hashlib.sha256()
-    try:
-        with open(path, "rb") as f:
-            while True:
-                block = f.read(chunk_bytes)
-                if not block:
-                    break
-                h.update(block)
-    except OSError as e:
-        raise DataError.at(path, f"cannot read file ({e.strerror or e})") from None
-    return h.hexdigest()
 
 
 def _jsonable(value: Any) -> Any:
@@ -348,5 +333,4 @@ __all__ = [
     "ShardInfo",
     "SplitInfo",
     "dumps_canonical",
-    "sha256_file",
 ]

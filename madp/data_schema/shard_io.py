@@ -13,9 +13,10 @@ from pathlib import Path
 from typing import Iterable, Iterator, Optional, Union
 
 from madp.io.atomic import named, temp_path
+from madp.io.checksum import sha256_file
 
 from . import mcap_codec, parquet_codec
-from .manifest import FORMATS, ShardInfo, sha256_file
+from .manifest import FORMATS, ShardInfo
 from .schema import SCHEMA_VERSION, DataError, Episode, SampleBatch, iter_episodes
 
 PathLike = Union[str, os.PathLike]

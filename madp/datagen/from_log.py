@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from madp.data_schema import ActionStatsAccumulator, DataError, Episode, Manifest, SplitInfo, write_shard
-from madp.data_schema.manifest import MANIFEST_FILENAME, SPLITS, sha256_file
+from madp.data_schema.manifest import MANIFEST_FILENAME, SPLITS
+from madp.io.checksum import sha256_file
 from madp.errors import SettingError
 from madp.io.atomic import write_text_atomic
 from madp.io.lock import locked_dir

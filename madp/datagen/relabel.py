@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import InputError, SettingError
 from madp.sim import CoverageEnv
 
@@ -33,7 +33,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
     policy's parent dataset;
     ``{}`` (the expert drives) without a policy, where a ``beta`` or a ``select`` is refused."""
     from madp.policies.checkpoint import load_policy
-    from madp.policies.select import check_selection, default_candidates
+    from madp.selection import check_rule, default_candidates
 
     if policy is None:
         if beta:
@@ -41,7 +41,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str =
         if select != "none":
             raise SettingError("select", "only meaningful with a policy")
         return {}
-    check_selection(select, default_candidates(select))
+    check_rule(select, default_candidates(select))
     policy = Path(policy)
     _, meta = load_policy(policy)
     if select != "none" and meta["kind"] != "madp":
@@ -73,7 +73,7 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
 
     The policy's noise and the draws are seeded by the scenario seed, and torch runs on one thread
     here, so a shard's bytes do not depend on which process makes it or how many there are."""
-    from madp.models.bench import _threads
+    from madp.models.bench import torch_threads
 
     learner = _learner(policy, seed)
     coin, beta = _coin(seed), float(policy["beta"])
@@ -81,7 +81,7 @@ def learner_driver(policy: dict, seed: int) -> Callable[[CoverageEnv, np.ndarray
     def drive(env: CoverageEnv, expert_u: np.ndarray) -> np.ndarray:
         if coin.random() < beta:
             return expert_u
-        with _threads(1):
+        with torch_threads(1):
             return learner(env)
 
     return drive
@@ -97,7 +97,7 @@ def learner_batch_driver(policy: dict, seeds: Sequence[int]) -> Callable[[list[C
     generator (seeded by its scenario seed, as its lone policy's), so every episode's draws and noise
     are those of its lone rollout and its actions differ from it only by the batch's float rounding.
     The other episodes execute ``expert_u`` (the ones not in ``live`` draw nothing)."""
-    from madp.models.bench import _threads
+    from madp.models.bench import torch_threads
     from madp.policies.madp import noise_generator
 
     learner = _learner(policy, seeds[0])
@@ -108,7 +108,7 @@ def learner_batch_driver(policy: dict, seeds: Sequence[int]) -> Callable[[list[C
         learned = [b for b in live if not coins[b].random() < beta]
         u = np.array(expert_u, copy=True)
         if learned:
-            with _threads(1):
+            with torch_threads(1):
                 u[learned] = learner.act_batch([envs[b] for b in learned], [generators[b] for b in learned])
         return u
 

@@ -244,7 +244,8 @@ def _run_locked(cfg: DatagenConfig, root: Path, plan: list[ShardTask], lo: int, 
     t0 = time.perf_counter()
     with _Progress(total, finished, progress) as bar:
         if ray is not None and todo:
-            for d in ray_imap_unordered(_worker, [(cfg.to_dict(), t, str(root)) for t in todo], ray):
+            # absolute: a relative --out is the driver's folder, not one under each Ray worker's own directory
+            for d in ray_imap_unordered(_worker, [(cfg.to_dict(), t, str(root.absolute())) for t in todo], ray):
                 rec = ShardRecord.from_dict(d, "ray task result")
                 done[rec.task] = rec
                 bar.advance(rec.info.num_samples)

@@ -182,6 +182,22 @@ def _env_difference(a: Run, b: Run) -> str | None:
     return None
 
 
+def shared_environments(runs: Sequence[Run]) -> list[Run]:
+    """``runs`` each restricted to the environments (group, index and scenario seed) that every one of
+    them holds: a run on a subset of a suite's environments (``madp eval --paired-se``) paired with a
+    full run of the same suite. One line naming the runs when they share none."""
+    shared = set.intersection(*(r.environments() for r in runs))
+    if not shared:
+        raise SettingError("runs", message=f"runs {', '.join(r.name for r in runs)} share no environment "
+                           "(group, index and scenario seed); --shared pairs runs of one suite")
+    out = []
+    for r in runs:
+        keep = np.array([k in shared for k in zip(r.group.tolist(), r.env.tolist(), r.seed.tolist())], dtype=bool)
+        out.append(replace(r, group=r.group[keep], env=r.env[keep], seed=r.seed[keep], controller=r.controller[keep],
+                           final_cost=r.final_cost[keep]))
+    return out
+
+
 def _check_comparable(runs: Sequence[Run], base: Run) -> None:
     for r in runs:
         if r is base:
@@ -234,8 +250,10 @@ def _stats_row(gi: np.ndarray, n_groups: int, costs: dict[str, np.ndarray], base
     return rows
 
 
-def compare_runs(runs: Sequence[Run], baseline: str | None = None, confidence: float = CONFIDENCE) -> dict[str, Any]:
-    """The comparison of ``runs`` (at least two) against the run named ``baseline`` (default: the first).
+def compare_runs(runs: Sequence[Run], baseline: str | None = None, confidence: float = CONFIDENCE,
+                 shared: bool = False) -> dict[str, Any]:
+    """The comparison of ``runs`` (at least two) against the run named ``baseline`` (default: the first);
+    ``shared``: on the environments every run holds (:func:`shared_environments`), not all of each.
 
     Returns ``{"suite", "steps", "confidence", "baseline", "runs": [{"name", "path", "settings"}],
     "differing_settings": [names], "groups", "controllers", "by_controller": {controller: {"runs":
@@ -250,6 +268,9 @@ def compare_runs(runs: Sequence[Run], baseline: str | None = None, confidence: f
     """
     if len(runs) < 2:
         raise SettingError("runs", "expected at least two runs to compare")
+    full = {r.name: len(r.environments()) for r in runs}
+    if shared:
+        runs = shared_environments(runs)
     by_name = {r.name: r for r in runs}
     base_name = baseline if baseline is not None else runs[0].name
     if base_name not in by_name:
@@ -289,6 +310,7 @@ def compare_runs(runs: Sequence[Run], baseline: str | None = None, confidence: f
     return {"suite": base.suite, "steps": base.steps, "confidence": confidence, "baseline": base.name,
             "runs": [{"name": r.name, "path": str(r.path), "settings": settings[r.name]} for r in runs],
             "differing_settings": differing, "groups": groups, "environments": len(envs),
+            "shared_of": full if shared else None,
             "controllers": controllers, "by_controller": by_controller}
 
 
@@ -333,6 +355,9 @@ def markdown(cmp: dict[str, Any]) -> str:
     lines = [f"### Compare: suite `{cmp['suite']}`, {cmp['environments']} environments, {cmp['steps']} steps", ""]
     lines.append("Runs: " + ", ".join(f"**{r['name']}** = `{r['path']}`" + (" (baseline)" if r["name"] == base else "")
                                       for r in cmp["runs"]) + ".")
+    if cmp.get("shared_of"):
+        lines += ["", f"Paired on the {cmp['environments']} environments every run holds (of "
+                  + ", ".join(f"{n}'s {k}" for n, k in cmp["shared_of"].items()) + ")."]
     if cmp["differing_settings"]:
         header = ["run"] + cmp["differing_settings"]
         lines += ["", "They differ in:", "", _md_row(header), _md_row(["---"] * len(header))]

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.io.atomic import atomic_path, remove_temps, write_text_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import clear_owned
@@ -85,6 +85,7 @@ class EvalConfig:
     device: str = "cpu"  # where the learned controllers' models run ("cpu", "cuda", "cuda:I")
     groups: tuple[str, ...] = ()  # run only these groups of the suite (empty: all)
     runtime: str = "torch"  # RUNTIMES: "onnx" runs decentralized MADP through madp.robot (madp.export.swarm)
+    paired_se: float | None = None  # run each suite's first environments for this SE of a paired difference
 
     def __post_init__(self) -> None:
         if self.runtime not in RUNTIMES:
@@ -172,7 +173,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
         hooks.append(frames)
     run([env], act_alone(ctrl), hooks, steps)
     if record:
-        from .record import write_rollout_mcap
+        from madp.recordings.record import write_rollout_mcap
 
         (suite_dir / "rollouts").mkdir(parents=True, exist_ok=True)
         write_rollout_mcap(suite_dir / "rollouts" / f"{spec.key}-{file_stem(controller)}.mcap", env.world_map,
@@ -357,7 +358,14 @@ def _read_config(cfg_file: Path) -> dict | None:
 
 
 def run_suite(cfg: EvalConfig, suite: str, overwrite: bool = False, progress: bool = True) -> dict:
-    """Run (or resume) one suite and write its tables and plots. Returns the report's summary."""
+    """Run (or resume) one suite and write its tables and plots. Returns the report's summary. With
+    ``cfg.paired_se`` the suite's first environments per group, as many as that standard error of a
+    paired difference needs (:func:`madp.eval.paired_se.envs_for_se`, at most ``cfg.num_envs``)."""
+    if cfg.paired_se is not None:
+        from .paired_se import envs_for_se
+
+        groups = len(cfg.groups) or len({e.group for e in suite_envs(suite, 1, cfg.cities)})
+        cfg = replace(cfg, num_envs=envs_for_se(suite, cfg.paired_se, groups, cfg.num_envs))
     envs = only_groups(suite_envs(suite, cfg.num_envs, cfg.cities), cfg.groups)
     suite_dir = Path(cfg.out) / suite
     with locked_dir(suite_dir):
@@ -421,13 +429,14 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
                   TextColumn("ETA"), TimeRemainingColumn(), disable=not progress) as bar:
         task = bar.add_task(suite, total=total, completed=total - pending)
         if cfg.ray is not None and tasks:
-            for n in ray_imap_unordered(_worker, [(cfg, c, es, str(suite_dir), rec, filmed) for c, es, rec in tasks], cfg.ray):
+            for n in ray_imap_unordered(_worker, [(cfg, c, es, str(suite_dir.absolute()), rec, filmed) for c, es, rec in tasks],
+                                        cfg.ray):
                 bar.advance(task, n)
             remove_temps(suite_dir)  # what a worker killed mid-job left (Ray ran its task again)
         elif workers == 1:
-            from madp.models.bench import _threads
+            from madp.models.bench import torch_threads
 
-            with _threads(1):  # one torch thread, as in every pool worker: two evaluations side by side
+            with torch_threads(1):  # one torch thread, as in every pool worker: two evaluations side by side
                 for c, es, rec in tasks:  # do not fight over the cores, and --workers changes no bit
                     bar.advance(task, run_task(cfg, c, es, suite_dir, rec, filmed))
         else:

@@ -83,7 +83,7 @@ SCALE_SIZES = (16, 32, 64, 128)
 
 def default_cities_dir() -> Path:
     """The traffic-signal files shipped with madp (40 U.S. cities, OpenStreetMap data, ODbL)."""
-    return Path(str(resources.files("madp.eval") / "data" / "cities"))
+    return Path(str(resources.files("madp.cities") / "data"))
 
 
 def eval_seed(suite: str, group: str, index: int) -> int:
@@ -122,7 +122,7 @@ class EnvSpec:
         if not self.city_file:
             base = Scenario.random(self.seed, self.params, LAUNCHES[self.launch])
             return replace(base.d4_image(self.d4) if self.d4 else base, name=f"{self.suite}/{self.key}")
-        from .cities import city_scenario
+        from madp.cities.importer import city_scenario
 
         return city_scenario(self.city_file, self.seed, self.params)[0]
 
@@ -172,7 +172,7 @@ def suite_envs(suite: str, num_envs: int = 50, cities_dir: str | Path | None = N
     if suite == "faults":
         return [EnvSpec(suite, name, i, base, network=net) for name, net in FAULTS.items() for i in range(num_envs)]
     if suite == "cities":
-        from .cities import load_city_dir
+        from madp.cities.importer import load_city_dir
 
         directory = Path(cities_dir) if cities_dir else default_cities_dir()
         files = load_city_dir(directory)

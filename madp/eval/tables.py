@@ -20,18 +20,18 @@ ALL_ROW = "all"
 
 #: Sampler names in prose.
 SAMPLER_NAMES = {"ddim": "DDIM", "dpm++": "DPM-Solver++(2M)"}
-#: How each selection rule among K samples per robot (:mod:`madp.policies.select`) reads in prose.
-SELECT_NAMES = {"oracle": "the best of {k} joint samples by the true J after the step (ORACLE: an upper bound, not a "
-                          "controller robots could run)",
-                "cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map",
-                "mppi": "each robot the MPPI mean of its {k} samples weighted by its own cell's cost",
-                "medoid": "each robot the most typical of its {k} samples (least summed distance to the others)",
-                "explore": "each robot the best of its {k} samples by its own Voronoi cell's cost on its own map, its "
-                           "unexplored blocks given the mean importance of its explored ones",
-                "oracle_cell": "each robot the best of its {k} samples by its own Voronoi cell's cost on the TRUE map "
-                               "(ORACLE: an upper bound for the cell rule, not a controller robots could run)",
-                "oracle_joint": "one copy of {k} per neighbourhood by the summed Voronoi cell costs on the TRUE map "
-                                "(ORACLE: an upper bound for value_joint, not a controller robots could run)"}
+
+
+def select_prose(select: str, k: int) -> str:
+    """How rule ``select`` among ``k`` samples per robot reads in the summary's prose (from its record,
+    :data:`madp.selection.RULES`); empty for ``none`` and for a name that is not a rule."""
+    from madp.selection import RULES
+
+    r = RULES.get(select)
+    if r is None or r.sees == "samples":
+        return ""
+    bound = " (an upper bound, not a controller robots could run)" if r.bound else ""
+    return f", {k} samples per robot kept by {r.name}: {r.help}{bound}"
 
 
 def _cell(st: Mapping[str, Any] | None) -> str:
@@ -151,5 +151,5 @@ def sampling_markdown(sampling: Mapping[str, Mapping[str, Any]]) -> str:
         f"{display_name(c)}: {SAMPLER_NAMES.get(v['sampler'], v['sampler'])}, S = {v['sampling_steps']}"
         + (", initial noise fixed per episode" if v.get("fixed_noise") else "")
         + (", in a random rotation/reflection of the world per step" if v.get("frame") == "d4" else "")
-        + (f", {SELECT_NAMES[v['select']].format(k=v['candidates'])}" if v.get("select") in SELECT_NAMES else "")
+        + select_prose(v.get("select", "none"), v.get("candidates", 1))
         for c, v in sampling.items()) + "."

@@ -32,13 +32,13 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
     rules with the checkpoint's map prior)."""
     import torch
 
-    from madp.models.bench import _threads
+    from madp.models.bench import torch_threads
     from madp.policies import MADPPolicy, SamplingSettings, load, noise_generator, shipped_checkpoint
     from madp.policies.checkpoint import load_map_prior
     from madp.robot.choice import local_views
     from madp.robot import RobotRuntime
     from madp.robot.prior import window_inputs
-    from madp.robot.runtime import PRIOR_RULES
+    from madp.selection import RULES
     from madp.sim import CoverageEnv, Scenario, SimParams
 
     from .onnx import export_policy
@@ -56,7 +56,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
         views = rt.view(env.maps, base)
         rows = [views.row(i) for i in range(num_robots)]
         # the map prior's input per robot (value rules): its graph runs inside the timing
-        windows = window_inputs(env.maps, base)[0] if rt.rule in PRIOR_RULES else None
+        windows = window_inputs(env.maps, base)[0] if rt.record.prior else None
         sent = [rt.message(i, 0, obs[i], pos[i], pos[nbr[i]], seed) for i in range(num_robots)]
         inboxes = [[sent[j] for j in np.flatnonzero(nbr[i])] for i in range(num_robots)]
         costs = [rt.cost_message(rt.step(i, 0, obs[i], pos[i], inboxes[i], seed, view=rows[i], own=sent[i]))
@@ -77,9 +77,9 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
         one_pass()
         robot = [one_pass() for _ in range(repeats)]
     policy = MADPPolicy(model, "decentralized", sampling,
-                        map_prior=load_map_prior(path) if sampling.select in PRIOR_RULES else None)
+                        map_prior=load_map_prior(path) if RULES[sampling.select].prior else None)
     gen = noise_generator(seed)
-    with _threads(1):
+    with torch_threads(1):
         policy.act_batch([env], [gen])
         swarm = []
         for _ in range(repeats):

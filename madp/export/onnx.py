@@ -28,15 +28,15 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import foreign_files
 from madp.policies.checkpoint import load_map_prior, load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
-from madp.policies.select import GRID_M, ORACLE_RULES
-from madp.robot.runtime import PRIOR_RULES
+from madp.policies.select import GRID_M
+from madp.selection import RULES
 from madp.sim import SimParams
 
 __all__ = ["FORMAT", "GRAPHS", "OPSET", "PRIOR_GRAPH", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
@@ -181,18 +181,19 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
     One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
     settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
     ``oracle`` rules that read the world), and for a ``value`` rule with a policy file that carries no map
-    prior. With a ``value`` rule (:data:`madp.robot.runtime.PRIOR_RULES`) the prior is exported too."""
+    prior. With a rule that needs a map prior (:attr:`madp.selection.Rule.prior`) the prior is exported too."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
     if sampling.fixed_noise:
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
-    if sampling.select in ORACLE_RULES:
+    rule = RULES[sampling.select]
+    if rule.bound:
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
     policy = Path(policy)
     model, meta = load_policy(policy)
-    prior = load_map_prior(policy) if sampling.select in PRIOR_RULES else None
-    if sampling.select in PRIOR_RULES and prior is None:
+    prior = load_map_prior(policy) if rule.prior else None
+    if rule.prior and prior is None:
         raise InputError(f"{policy}: carries no map prior, which {sampling.select} ranks candidates on "
                          "(madp value train adds one)")
     if meta["kind"] != "madp":

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import SettingError
 from madp.policies.madp import SamplingSettings, noise_generator
 from madp.robot.choice import local_views

@@ -1,10 +1,10 @@
 """Micro-benchmarks of the models on random inputs (no data, no simulator).
 
-* :func:`matmul_flops_per_s`, :func:`_count_flops`, :func:`_count_bytes`: this machine's matmul FLOP/s
+* :func:`matmul_flops_per_s`, :func:`count_flops`, :func:`count_bytes`: this machine's matmul FLOP/s
   (float32 or bfloat16, square or at a model's shapes), the FLOPs of a function
   (``torch.utils.flop_counter``) and the bytes its matmul-class ops move, for ``madp bench train``
   (:mod:`madp.training.bench`), which times real training steps, and the control step's roofline
-  (:mod:`madp.eval.roofline`).
+  (:mod:`madp.inference_bench.roofline`).
 * :func:`bench_infer`: median latency of one MADP control step (CNN + encoder once, decoder S times)
   in decentralized or centralized-masked mode.
 
@@ -24,7 +24,8 @@ import torch
 from .config import lpac_config, madp_config
 from .madp import MADP
 
-__all__ = ["bench_infer", "matmul_flops_per_s", "random_swarm"]
+__all__ = ["bench_infer", "count_bytes", "count_flops", "matmul_flops_per_s", "random_swarm", "sync_device", "timed",
+           "torch_threads"]
 
 
 def random_swarm(batch: int, num_robots: int, world: float = 1024.0, generator: torch.Generator | None = None,
@@ -43,11 +44,11 @@ def matmul_flops_per_s(n: int = 2048, reps: int = 10, device: torch.device | str
     m, k, p = shape or (n, n, n)
     a = torch.randn(m, k, device=device).to(dtype)
     b = torch.randn(k, p, device=device).to(dtype)
-    times = _timed(lambda: a @ b, 2, reps, device)
+    times = timed(lambda: a @ b, 2, reps, device)
     return 2 * m * k * p / statistics.median(times)
 
 
-class _threads:
+class torch_threads:
     """Temporarily set torch's intra-op thread count (None: leave it)."""
 
     def __init__(self, n: int | None):
@@ -61,26 +62,26 @@ class _threads:
         torch.set_num_threads(self.before)
 
 
-def _sync(device: torch.device | str) -> None:
+def sync_device(device: torch.device | str) -> None:
     if torch.device(device).type == "cuda":
         torch.cuda.synchronize()
 
 
-def _timed(fn, warmup: int, repeats: int, device) -> list[float]:
+def timed(fn, warmup: int, repeats: int, device) -> list[float]:
     """Wall seconds of ``repeats`` calls of ``fn`` after ``warmup`` untimed ones (device-synchronised)."""
     for _ in range(warmup):
         fn()
     times = []
     for _ in range(repeats):
-        _sync(device)
+        sync_device(device)
         t = time.perf_counter()
         fn()
-        _sync(device)
+        sync_device(device)
         times.append(time.perf_counter() - t)
     return times
 
 
-def _count_flops(fn) -> int:
+def count_flops(fn) -> int:
     """FLOPs of ``fn()`` by ``FlopCounterMode``. Its default table knows the CUDA attention kernels but
     not the CPU flash-attention op that ``scaled_dot_product_attention`` dispatches to here, so that
     op (forward and backward) is mapped to the same formulas."""
@@ -103,13 +104,13 @@ def _count_flops(fn) -> int:
     return int(counter.get_total_flops())
 
 
-#: The ops whose operands :func:`_count_bytes` counts: matmuls, convolutions and attention (the ops
+#: The ops whose operands :func:`count_bytes` counts: matmuls, convolutions and attention (the ops
 #: ``FlopCounterMode`` counts FLOPs of), at whichever level the dispatcher shows them.
 _BYTE_OPS = ("linear", "addmm", "mm", "bmm", "matmul", "conv2d", "convolution", "scaled_dot_product_attention",
              "_scaled_dot_product_flash_attention_for_cpu")
 
 
-def _count_bytes(fn) -> int:
+def count_bytes(fn) -> int:
     """Bytes the matmul-class ops of ``fn()`` read and write (:data:`_BYTE_OPS`): every tensor operand
     (weights, bias, inputs, an attention mask) once and the first output once, at its dtype's size.
     Element-wise ops (norms, activations, residual adds) are taken as fused into them: not counted."""
@@ -148,7 +149,7 @@ def bench_infer(preset: str = "cpu", mode: str = "decentralized", num_steps: int
     several coincide). Also reports the largest and mean neighbourhood size (tokens per
     neighbourhood batch in decentralized mode). ``threads``: torch's intra-op threads for the run (None: the current setting).
     """
-    with _threads(threads):
+    with torch_threads(threads):
         return _bench_infer(preset, mode, num_steps, num_robots, repeats, warmup, eta, layout, dedupe, device, seed,
                             sampler)
 
@@ -178,7 +179,7 @@ def _bench_infer(preset: str, mode: str, num_steps: int, num_robots: int, repeat
             else:
                 model.sample(obs, pos, num_steps=num_steps, eta=eta, sampler=sampler)
 
-    times = _timed(run, warmup, repeats, device)
+    times = timed(run, warmup, repeats, device)
     return {
         "preset": preset, "mode": mode, "layout": layout, "dedupe": dedupe, "sampler": sampler, "num_steps": num_steps,
         "num_robots": num_robots,

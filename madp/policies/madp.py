@@ -26,9 +26,10 @@ from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_
 from madp.models.symmetry import inverse_actions, transform_points, transform_state
 from madp.models.attention_mask import closer_than_squared
 from madp.robot.frame import frame_element  # torch-free: the robot runtime computes it too
+from madp.selection import DEFAULT_RULE, check_rule, default_candidates
 from madp.sim.rules import clip_speed
 
-from .select import DEFAULT_SELECT, check_selection, default_candidates, select_actions
+from .select import select_actions
 from .swarm import swarm_tensors
 
 if TYPE_CHECKING:
@@ -76,10 +77,8 @@ class SamplingSettings:
       world's symmetries, and a direction the model prefers in its own axes changes every step.
 
     ``candidates`` K and ``select``: every robot draws K candidate actions in the same batched call
-    and keeps one by rule ``select`` (:mod:`madp.policies.select`): ``none`` (K = 1: one sample per robot),
-    ``oracle`` (the joint sample of lowest true J after the step: an upper bound that reads the whole
-    world, not a controller robots could run), ``cell``, ``mppi``, ``explore`` (the default, K = 4) or ``medoid``
-    (each robot on what it knows) and ``oracle_cell`` (``cell`` on the true map: an upper bound).
+    and keeps one by rule ``select`` (:data:`madp.selection.RULES`; the default K = 4,
+    ``none``: K = 1, one sample per robot).
 
     ``precision``: ``fp32``, or ``bf16``: the transformer's linear layers (nearly all of the sampling's
     arithmetic) hold their weights in bfloat16 and compute in it, the rest in float32
@@ -93,15 +92,15 @@ class SamplingSettings:
     eta: float = 0.0
     fixed_noise: bool = False
     frame: str = "d4"
-    select: str = DEFAULT_SELECT
-    candidates: int = default_candidates(DEFAULT_SELECT)
+    select: str = DEFAULT_RULE
+    candidates: int = default_candidates(DEFAULT_RULE)
     precision: str = "fp32"
 
     def __post_init__(self) -> None:
         check_sampler(self.sampler, self.sampling_steps, self.eta)
         if self.frame not in FRAMES:
             raise SettingError("frame", f"expected one of {', '.join(FRAMES)}, got {self.frame!r}")
-        check_selection(self.select, self.candidates)
+        check_rule(self.select, self.candidates)
         if self.precision not in PRECISIONS:
             raise SettingError("precision", f"expected one of {', '.join(PRECISIONS)}, got {self.precision!r}")
 
@@ -110,8 +109,8 @@ class SamplingSettings:
            fixed_noise: bool = False, frame: str = "d4", select: str | None = None, candidates: int | None = None,
            precision: str = "fp32") -> "SamplingSettings":
         """The settings with ``None`` standing for the default sampler, S and selection rule, and for
-        the rule's default K (:func:`madp.policies.select.default_candidates`)."""
-        select = DEFAULT_SELECT if select is None else select
+        the rule's default K (:func:`madp.selection.default_candidates`)."""
+        select = DEFAULT_RULE if select is None else select
         return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,
                    select, default_candidates(select) if candidates is None else candidates, precision)
 

@@ -1,8 +1,9 @@
-"""What one robot computes to choose among its K samples (:mod:`madp.policies.select` has the rules):
+"""What one robot computes to choose among its K samples (:mod:`madp.selection` has the rules):
 what it knows (:func:`map_views`, with the ``explore`` prior :func:`map_prior`: row i from robot i's
 own map and neighbours alone; :func:`local_views` and :func:`explore_prior` compute them for every
 robot of an environment at once, :class:`madp.robot.RobotAgent` for itself), the local
-cell cost of each candidate (:func:`local_cell_costs`), MPPI's weights and the medoid. numpy and numba only (no torch): the robot
+cell cost of each candidate (:func:`local_cell_costs`), the copy of a neighbourhood (:func:`joint_copy`) and what
+a robot that hears no one does (:func:`lone_steps`). numpy and numba only (no torch): the robot
 runtime (:mod:`madp.robot.runtime`) and MADP's PyTorch policy run the same code.
 """
 
@@ -21,16 +22,11 @@ from madp.sim.robot_maps import EXPLORED_BLOCK_M, RobotMaps, robot_cells
 if TYPE_CHECKING:
     from madp.sim.env import CoverageEnv
 
-__all__ = ["GRID_M", "MAP_RULES", "MPPI_TEMPERATURE", "LocalViews", "explore_prior", "local_cell_costs", "local_views",
-           "LONE_PRIOR_SHARE", "joint_copy", "lone_radius_m", "lone_steps", "map_prior", "map_views", "medoid_index",
-           "mppi_weights", "unexplored_blocks"]
+__all__ = ["GRID_M", "LocalViews", "explore_prior", "local_cell_costs", "local_views", "LONE_PRIOR_SHARE", "joint_copy",
+           "lone_radius_m", "lone_steps", "map_prior", "map_views", "unexplored_blocks"]
 
 #: Spacing (m) of the grid the local cell cost is summed on: 4 × 4 cells of a robot's map per point.
 GRID_M = 4
-#: MPPI's λ in units of the standard deviation of a robot's K local costs.
-MPPI_TEMPERATURE = 1.0
-#: The selection rules a robot runs that read its own map (they need its :class:`LocalViews` row).
-MAP_RULES = ("cell", "explore", "mppi")
 
 
 @dataclass(frozen=True)
@@ -427,19 +423,6 @@ def lone_steps(views: LocalViews, params: SimParams, radius_m: float | None = No
     return lone, steps
 
 
-def mppi_weights(costs: np.ndarray, temperature: float = MPPI_TEMPERATURE) -> np.ndarray:
-    """Weights ``[R, K]`` (each row sums to 1) ``∝ exp(−(c_k − min c) / λ)`` with λ = ``temperature`` ×
-    the standard deviation of the row's K costs: invariant to the costs' scale and offset. A row
-    whose costs are all equal gets equal weights; ``temperature → 0`` puts all weight on the lowest
-    cost, ``temperature → ∞`` gives equal weights."""
-    c = np.asarray(costs, dtype=np.float64)
-    spread = c.std(axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        z = np.where(spread > 0, (c - c.min(axis=1, keepdims=True)) / (temperature * spread), 0.0)
-    w = np.exp(-z)
-    return w / w.sum(axis=1, keepdims=True)
-
-
 def joint_copy(costs: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Per robot, the copy k of least summed cost over its neighbourhood: ``costs [R, K]`` (each
     robot's own cost of its copy k), ``neighbours [R, R]`` bool (robot i holds robot j's costs of
@@ -448,10 +431,3 @@ def joint_copy(costs: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     keep actions of one joint sample (ties: the lowest k)."""
     near = np.asarray(neighbours, dtype=bool) | np.eye(len(costs), dtype=bool)
     return (near.astype(np.float64) @ np.asarray(costs, dtype=np.float64)).argmin(1)
-
-
-def medoid_index(candidates_mps: np.ndarray) -> np.ndarray:
-    """Per row of ``candidates_mps [R, K, 2]``, the index of the candidate of least summed Euclidean
-    distance to the row's K candidates: ``[R]`` (ties: the lowest index)."""
-    diff = candidates_mps[:, :, None] - candidates_mps[:, None]  # [R, K, K, 2]
-    return np.sqrt((diff ** 2).sum(-1)).sum(2).argmin(1)

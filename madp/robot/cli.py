@@ -9,7 +9,7 @@ a dev install of madp has it too). Standard library argparse only: it imports no
 - ``madp-robot run ARGS...``: one robot process of a swarm; the arguments go to
   :func:`madp.robot.process.main` unchanged.
 
-As ``madp``'s (:mod:`madp.cli_main`): a user's mistake (a bad flag, a :class:`madp.errors.MadpError`,
+As ``madp``'s (:mod:`madp.commands.main`): a user's mistake (a bad flag, a :class:`madp.errors.MadpError`,
 an ``OSError``, a package madp-robot depends on that is not installed) is one line ``madp-robot: error: …``
 on stderr and exit status 2 (``MADP_DEBUG=1`` raises it instead); anything else is a bug: the traceback,
 one line asking for a report, exit status 1.

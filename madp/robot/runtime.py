@@ -14,8 +14,8 @@ computes it for every robot at once):
    the senders within r_c, ascending by id) and the denoiser graph S times (DPM-Solver++(2M), the
    constants of ``runtime.json``) on K noise draws as one batch; it keeps its own token's K actions,
    moves them back to the world's axes, clips them to u_max and keeps one by the selection rule
-   (:mod:`madp.policies.select`'s rules, computed by :mod:`madp.robot.choice`: numpy and numba);
-4. **costs** (the ``_joint`` rules only, :data:`JOINT_RULES`): the action of step 3 is provisional.
+   (:func:`madp.selection.choose`, the chooser the simulator uses too: numpy and numba);
+4. **costs** (the ``joint`` rules only, :attr:`madp.selection.Rule.joint`): the action of step 3 is provisional.
    The robot broadcasts its K costs (:meth:`RobotRuntime.cost_message`), and keeps its action of the
    copy k whose cost summed with those of the neighbours it holds is least
    (:meth:`RobotRuntime.choose_joint`).
@@ -27,7 +27,6 @@ episode's seed, the step and the robot's id (:func:`robot_noise`). Nothing here 
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
@@ -35,26 +34,20 @@ from typing import Callable
 import numpy as np
 
 from madp.errors import InputError, SettingError
+from madp.io.checksum import sha256_file
 from madp.io.jsonfile import read_json
-from .choice import MAP_RULES, LocalViews, local_cell_costs, lone_steps, map_prior, medoid_index, mppi_weights
+from madp.selection import RULES, Rule, choose, rule_names, weigh
 from madp.sim.network import Message
 from madp.sim.params import SimParams
 from madp.sim.rules import clip_speed, closer_than_squared
 
+from .choice import LocalViews
 from .frame import frame_element, inverse_action, transform_observation, transform_points
 from .inbox import InboxCounts, read_inbox
-from .prior import value_view
 
-__all__ = ["FORMAT", "JOINT_RULES", "RobotRuntime", "StepResult", "check_own", "robot_noise"]
+__all__ = ["FORMAT", "RobotRuntime", "StepResult", "check_own", "robot_noise"]
 
 FORMAT = "madp-onnx-runtime/1"
-RULES = ("none", "cell", "explore", "mppi", "medoid", "value", "value_explore", "value_joint", "value_explore_joint")
-#: The rules that rank candidates on the export's map prior (its ``map_prior`` graph).
-PRIOR_RULES = ("value", "value_explore", "value_joint", "value_explore_joint")
-#: The rules that sum the neighbours' costs of each copy: one more round of messages a step.
-JOINT_RULES = ("value_joint", "value_explore_joint")
-#: The rules whose map prior has ``explore``'s mean as a floor.
-FLOOR_RULES = ("value_explore", "value_explore_joint")
 GRAPHS = ("perception", "encoder", "denoiser")
 
 Noise = Callable[[np.ndarray], np.ndarray]
@@ -129,9 +122,11 @@ class RobotRuntime:
             self.params = params or SimParams(**spec["motion"])
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{spec_file}: not a complete {FORMAT} file ({type(e).__name__}: {e})") from None
-        if self.rule not in RULES:
-            raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(RULES)})")
-        if self.rule in PRIOR_RULES and "map_prior" not in graphs:
+        runs = rule_names(bound=False)
+        if self.rule not in runs:
+            raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(runs)})")
+        self.record: Rule = RULES[self.rule]
+        if self.record.prior and "map_prior" not in graphs:
             raise InputError(f"{spec_file}: selection rule {self.rule} needs the map prior's graph, which the export "
                              "does not name (export again from a policy file that carries one)")
         self.max_age = max_age
@@ -160,14 +155,7 @@ class RobotRuntime:
             raise InputError(f"{spec_file}: no sha256 of each graph (graph_sha256); export again with madp export")
         for role, name in graphs.items():
             path = self.directory / name
-            try:
-                h = hashlib.sha256()
-                with open(path, "rb") as f:
-                    for chunk in iter(lambda: f.read(1 << 20), b""):
-                        h.update(chunk)
-                digest = h.hexdigest()
-            except OSError as e:
-                raise InputError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
+            digest = sha256_file(path)
             if digest != digests[role]:
                 raise InputError(f"{path}: its sha256 differs from the one {spec_file.name} records "
                                  "(an interrupted or mixed export); export again with madp export --overwrite")
@@ -176,12 +164,12 @@ class RobotRuntime:
     @property
     def reads_map(self) -> bool:
         """Whether its rule reads the robot's map (the step needs the robot's view)."""
-        return self.rule in (*MAP_RULES, *PRIOR_RULES)
+        return self.record.ranks
 
     @property
     def joint(self) -> bool:
         """Whether its rule sums the neighbours' costs (a round of cost messages each step)."""
-        return self.rule in JOINT_RULES
+        return self.record.joint
 
     def predict_prior(self, windows: np.ndarray) -> np.ndarray:
         """The map prior's graph: ``windows [R, 3, H, W]`` (:func:`madp.robot.prior.prior_inputs`) ->
@@ -191,13 +179,9 @@ class RobotRuntime:
 
     def view(self, maps, view: LocalViews) -> LocalViews:
         """A robot's view as its rule ranks on: ``view`` (from its own ``maps``, :func:`madp.robot.choice.map_views`)
-        with the ``explore`` prior, or the map prior's (``value``; ``value_explore``: at least ``explore``'s),
-        or as it is (``cell``, ``mppi``)."""
-        if self.rule == "explore":
-            return map_prior(maps, view)
-        if self.rule in PRIOR_RULES:
-            return value_view(maps, view, self.predict_prior, floor=self.rule in FLOOR_RULES)
-        return view
+        weighed by the rule (:func:`madp.selection.weigh`; the map prior's graph for the rules that
+        need one)."""
+        return weigh(self.record, maps, view, self.predict_prior if self.record.prior else None)
 
     def frame_of(self, seed: int, step: int) -> int:
         """The d4 element of ``step`` of the episode of ``seed`` (0 with ``frame="world"``)."""
@@ -262,8 +246,8 @@ class RobotRuntime:
         received (this step's tokens of its neighbours; bad ones are dropped and counted, never
         raised); ``view``: its :class:`madp.policies.select.LocalViews` row (R = 1: its own position
         as the motion rule integrates it, its sensed map's block sums with its rule's prior: :meth:`view`),
-        for the rules that read its map (``cell``, ``explore``, ``mppi``, ``value``, ``value_explore``; the
-        neighbours are taken from the inbox); ``noise(ids) -> [K, T, 2]``: the starting noise of the neighbourhood's robots
+        for the rules that read its map (:attr:`madp.selection.Rule.ranks`; the neighbours are
+        taken from the inbox); ``noise(ids) -> [K, T, 2]``: the starting noise of the neighbourhood's robots
         (default :func:`robot_noise`); ``own``: its message of this step when already computed by
         :meth:`message` (else computed here from the inbox's positions)."""
         check_own(observation, position_m)
@@ -290,12 +274,9 @@ class RobotRuntime:
         u = (x[:, me] * self.std + self.mean).astype(np.float64)  # [K, 2] m/s in the frame
         u = inverse_action(u, g) if g else u
         u = clip_speed(u, self.params.max_speed_mps)
-        if self.joint and len(u) > 1:
-            row = self._row(view, nbr_m)
-            costs = local_cell_costs(row, u[None], self.params)[0]
-            lone = not len(nbr_m)
-            action = lone_steps(row, self.params)[1][0] if lone else u[int(costs.argmin())]
-            return StepResult(action, u, own, counts, costs, lone)
+        if self.joint and len(u) > 1:  # provisional: its own best, or its lone step; costs for the cost round
+            action, costs = choose(self.record, u[None], self._row(view, nbr_m), self.params)
+            return StepResult(action[0], u, own, counts, costs[0], not len(nbr_m))
         return StepResult(self.choose(u, view, nbr_m), u, own, counts)
 
     def _row(self, view: LocalViews | None, neighbours_m: np.ndarray) -> LocalViews:
@@ -310,18 +291,11 @@ class RobotRuntime:
         return replace(view, neighbours_m=nbr, valid=valid)
 
     def choose(self, candidates_mps: np.ndarray, view: LocalViews | None, neighbours_m: np.ndarray) -> np.ndarray:
-        """The action ``[2]`` the selection rule keeps among ``candidates_mps [K, 2]`` (world axes)."""
-        if self.rule == "none" or len(candidates_mps) == 1:
+        """The action ``[2]`` the selection rule keeps among ``candidates_mps [K, 2]`` (world axes):
+        :func:`madp.selection.choose` on its ``view`` with ``neighbours_m [M, 2]``."""
+        if not self.record.ranks or len(candidates_mps) == 1:
             return candidates_mps[0]
-        if self.rule == "medoid":
-            return candidates_mps[int(medoid_index(candidates_mps[None])[0])]
-        row = self._row(view, neighbours_m)
-        if not len(neighbours_m):  # it hears no one: the Lloyd step of the disc it expects to cover
-            return lone_steps(row, self.params)[1][0]
-        costs = local_cell_costs(row, candidates_mps[None], self.params)
-        if self.rule == "mppi":
-            return np.einsum("k,kd->d", mppi_weights(costs)[0], candidates_mps)
-        return candidates_mps[int(costs[0].argmin())]
+        return choose(self.record, candidates_mps[None], self._row(view, neighbours_m), self.params)[0][0]
 
     # ------------------------------------------------------------------------------ the cost round
     def cost_message(self, result: StepResult) -> Message:

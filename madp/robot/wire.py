@@ -28,7 +28,7 @@ an unknown kind, sizes beyond :data:`MAX_SIDE` / :data:`MAX_TOKEN` / :data:`MAX_
 position, reading, token, cost or action, bad UTF-8 or JSON) decode to None, so no packet can stop a
 process. On the middleware every record is sealed with its robot's key (:mod:`madp.robot.seal`).
 
-The cost phase is the round of the ``_joint`` selection rules (:data:`madp.robot.runtime.JOINT_RULES`)
+The cost phase is the round of the ``_joint`` selection rules (:attr:`madp.selection.Rule.joint`)
 only: each robot's K costs of its candidates' copies, sent after it sampled and before its command.
 
 Keys (``RUN`` a run's key, ``I`` a robot's id): the world publishes to ``madp/RUN/robot/I/in/<name>``

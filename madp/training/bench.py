@@ -33,7 +33,7 @@ from typing import Any, Iterator
 import torch
 
 from madp.errors import InputError, SettingError
-from madp.models.bench import _count_flops, _sync, _threads, matmul_flops_per_s
+from madp.models.bench import count_flops, sync_device, torch_threads, matmul_flops_per_s
 
 from .config import TrainConfig, resolve
 
@@ -94,7 +94,7 @@ class _CaseRun:
 
         self.case, self.device = case, device
         cfg = self.cfg = resolve(case.model, case.preset, data=str(data), batch_size=case.batch_size, seed=seed)
-        with _threads(case.threads):
+        with torch_threads(case.threads):
             torch.manual_seed(seed)
             raw = self.raw = build_model(cfg, 0).to(device)
             stats = open_dataset(data).action_stats
@@ -109,7 +109,7 @@ class _CaseRun:
         self.steps_done = 0
 
     def _clock(self, t0: float) -> float:
-        _sync(self.device)
+        sync_device(self.device)
         return time.perf_counter() - t0
 
     def _loss(self, model, batch: dict, step: int) -> torch.Tensor:
@@ -122,7 +122,7 @@ class _CaseRun:
         return batch_loss(model, self.raw, batch, self.cfg, draws, self.device)
 
     def step(self, timed: bool) -> None:
-        with _threads(self.case.threads):
+        with torch_threads(self.case.threads):
             t = time.perf_counter()
             batch = next(self.batches)
             d_data = self._clock(t)
@@ -147,9 +147,9 @@ class _CaseRun:
 
     def report(self, matmul_flops: float | None) -> dict[str, Any]:
         cfg, case = self.cfg, self.case
-        with _threads(case.threads):
+        with torch_threads(case.threads):
             batch = next(self.batches)
-            flops = _count_flops(lambda: self._loss(self.raw, batch, 0).backward())
+            flops = count_flops(lambda: self._loss(self.raw, batch, 0).backward())
             self.opt.zero_grad(set_to_none=True)
             compute = [f + b + o for f, b, o in zip(self.times["forward"], self.times["backward"],
                                                     self.times["optimizer"])]
@@ -188,7 +188,7 @@ def bench_train(cases: list[TrainBenchCase], data: Path, steps: int = 10, warmup
             r.step(timed=i >= warmup)
         if measure_matmul and i >= warmup:  # the peak is sampled between the steps, under the same load
             for t in thread_counts:
-                with _threads(t):
+                with torch_threads(t):
                     matmul[t].append(matmul_flops_per_s(n=1024, reps=1, device=device))
     return [r.report(statistics.median(matmul[r.case.threads]) if measure_matmul else None) for r in runs]
 

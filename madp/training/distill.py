@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import InputError
 from madp.models import MADP
 from madp.models.samplers import DEFAULT_SAMPLER

@@ -30,7 +30,7 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.datagen.plan import scenario_seed
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path

@@ -34,7 +34,7 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader
 
 from madp.data_schema.dataset import check_shards, open_dataset
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import InputError, SettingError
 from madp.io.atomic import named, write_text_atomic
 from madp.io.lock import locked_dir

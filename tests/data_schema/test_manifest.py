@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from madp.data_schema import ActionStatsAccumulator, DataError, Manifest, ShardInfo, SplitInfo, iter_shard, write_shard
-from madp.data_schema.manifest import _req, sha256_file
+from madp.data_schema.manifest import _req
+from madp.io.checksum import sha256_file
 
 from .conftest import random_episodes
 

@@ -9,7 +9,8 @@ import shutil
 import pyarrow.parquet as pq
 import pytest
 
-from madp.data_schema import DataError, Manifest, ShardInfo, check_shard, sha256_file
+from madp.data_schema import DataError, Manifest, ShardInfo, check_shard
+from madp.io.checksum import sha256_file
 from madp.data_schema.dataset import convert_dataset
 from madp.datagen import DatagenConfig, make_plan, run_datagen
 from madp.sim import SimParams

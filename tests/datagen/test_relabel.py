@@ -50,7 +50,7 @@ def test_relabelled_bytes_do_not_depend_on_workers(madp_relabelled, tmp_path):
 
 
 def test_manifest_records_policy_beta_and_parent(madp_relabelled):
-    from madp.data_schema.manifest import sha256_file
+    from madp.io.checksum import sha256_file
 
     m, b, first = first_episode(madp_relabelled)
     pol = m.params["policy"]
@@ -118,7 +118,7 @@ def test_the_learner_draws_one_sample_per_robot_whatever_the_evaluation_default(
     from madp.controllers import make_controller
     from madp.datagen.relabel import learner_driver, learner_settings
     from madp.policies import SamplingSettings
-    from madp.policies.select import DEFAULT_SELECT
+    from madp.selection import DEFAULT_RULE as DEFAULT_SELECT
 
     path, seed = shipped_checkpoint("madp"), 11
     drive = learner_driver(learner_settings(path), seed)
@@ -142,7 +142,7 @@ def test_select_drives_as_the_evaluation_default_and_is_recorded(tmp_path):
     (the same actions as that controller, step by step), and the plan and manifest say so."""
     from madp.controllers import make_controller
     from madp.datagen.relabel import learner_driver, learner_settings
-    from madp.policies.select import DEFAULT_SELECT
+    from madp.selection import DEFAULT_RULE as DEFAULT_SELECT
 
     path, seed = shipped_checkpoint("madp"), 11
     settings = learner_settings(path, select=DEFAULT_SELECT)

@@ -113,3 +113,46 @@ def test_compare_refuses_other_environments_and_missing_runs(runs, tmp_path):
     (broken / "config.json").write_text((a / "config.json").read_text()[:40])  # a truncated config
     assert_one_line(*cli("eval", "compare", a, broken, "--out", out), "config.json: unreadable (JSONDecodeError")
     assert not out.exists()
+
+
+def test_shared_pairs_a_subset_run_with_a_full_one(runs, tmp_path):
+    """--shared pairs run ``fewer`` (the first 3 environments, dcvt only) with run ``a`` on those 3: the
+    numbers equal a direct computation on them, and the page says so."""
+    a, fewer = runs / "a" / "uniform", runs / "fewer" / "uniform"
+    code, err = cli("eval", "compare", a, fewer, "--shared", "--out", tmp_path)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "compare.json").read_text())
+    assert doc["environments"] == 3 and doc["shared_of"] == {"a": 4, "fewer": 3}
+    want = _direct(fewer, a)["dcvt"]
+    got = doc["by_controller"]["dcvt"]["groups"]["uniform"]
+    assert got["n"] == want["n"] == 3
+    np.testing.assert_allclose(got["paired"]["fewer"]["diff"], want["diff"], atol=1e-15)
+    assert "Paired on the 3 environments every run holds (of a's 4, fewer's 3)" in (tmp_path / "compare.md").read_text()
+    # runs that share no environment are refused in one line
+    other = tmp_path / "other" / "uniform"
+    shutil.copytree(fewer, other)
+    table = pq.read_table(other / "results.parquet")
+    seeds = table.column("scenario_seed").to_numpy() + 1
+    pq.write_table(table.set_column(table.column_names.index("scenario_seed"), "scenario_seed", pa.array(seeds)),
+                   other / "results.parquet")
+    assert_one_line(*cli("eval", "compare", a, other, "--shared", "--out", tmp_path / "x"), "share no environment")
+
+
+def test_paired_se_runs_the_environments_the_kept_spread_asks_for(tmp_path):
+    """--paired-se S runs ⌈(σ_d / S)²⌉ environments of a suite (σ_d from the kept spread), the first ones,
+    capped by --num-envs; S ≤ 0 or NaN is a one-line error."""
+    from madp.eval.paired_se import envs_for_se, paired_sd
+
+    sd = paired_sd("uniform")
+    assert 0.01 < sd < 0.2
+    se = sd / 2  # needs 4 environments
+    assert envs_for_se("uniform", se, 1, 50) == 4 and envs_for_se("uniform", se, 1, 3) == 3
+    assert envs_for_se("uniform", se, 3, 50) == 2  # 4 spread over 3 groups
+    summary_dir = tmp_path / "r"
+    run_suite(EvalConfig(suite="uniform", out=str(summary_dir), num_envs=50, steps=2, workers=1, controllers=("dcvt",),
+                         paired_se=se), "uniform", progress=False)
+    config = json.loads((summary_dir / "uniform" / "config.json").read_text())
+    assert config["num_envs"] == 4 and config["env_keys"] == [f"uniform-{i:03d}" for i in range(4)]
+    for bad in (0, -1.0, float("nan")):
+        assert_one_line(*cli("eval", "--controllers", "dcvt", "--paired-se", str(bad), "--out", tmp_path / "bad"),
+                        "--paired-se")

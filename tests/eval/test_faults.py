@@ -14,7 +14,7 @@ from madp.eval.faults import fault_axes, faults_figure
 from madp.eval.runner import EvalConfig, run_suite
 from madp.eval.suites import FAULTS, MAX_NUM_ENVS, suite_envs
 from madp.sim.network import LINK_DELIVERED, LINK_LOST
-from tests.eval.test_record import _read
+from tests.recordings.test_record import _read
 
 
 def test_faults_groups_run_the_uniform_environments_over_their_networks():

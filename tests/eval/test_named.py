@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from madp.controllers import display_name, file_stem, make_controller, parse_controllers
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.errors import SettingError
 from madp.models import MADP, madp_config
 from madp.training.checkpoint import save_policy

@@ -12,26 +12,26 @@ import pytest
 from madp.eval.runner import EvalConfig, run_batch, run_job, run_suite
 from madp.eval.suites import suite_envs
 from madp.policies import SamplingSettings
-from tests.eval.test_record import _read
+from tests.recordings.test_record import _read
 
 
 def test_selection_is_named_in_every_output(tmp_path, checkpoints):
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=2, steps=2, controllers=("dcvt", "madp"),
                      madp=str(checkpoints / "madp.safetensors"),
-                     sampling=SamplingSettings(select="cell", candidates=2), workers=1, record=1)
+                     sampling=SamplingSettings(select="explore", candidates=2), workers=1, record=1)
     run_suite(cfg, "uniform", progress=False)
     d = tmp_path / "uniform"
     summary = json.loads((d / "summary.json").read_text())
     config = json.loads((d / "config.json").read_text())
-    assert config["select"] == "cell" and config["candidates"] == 2
+    assert config["select"] == "explore" and config["candidates"] == 2
     res = pq.read_table(d / "results.parquet").to_pydict()
     assert {(c, s, k) for c, s, k in zip(res["controller"], res["select"], res["candidates"])} == {
-        ("dcvt", "", 0), ("madp", "cell", 2)}
-    assert summary["sampling"]["madp"]["select"] == "cell" and summary["sampling"]["madp"]["candidates"] == 2
-    assert "each robot the best of its 2 samples by its own Voronoi cell's cost" in (d / "summary.md").read_text()
+        ("dcvt", "", 0), ("madp", "explore", 2)}
+    assert summary["sampling"]["madp"]["select"] == "explore" and summary["sampling"]["madp"]["candidates"] == 2
+    assert "2 samples per robot kept by explore: each robot keeps the sample of least cost of its own Voronoi cell" in (d / "summary.md").read_text()
     _, meta, _ = _read(d / "rollouts" / "uniform-000-madp.mcap")
-    assert any(m.get("select") == "cell" and m.get("candidates") == "2" for m in meta.values())
-    other = replace(cfg, sampling=replace(cfg.sampling, select="mppi"))
+    assert any(m.get("select") == "explore" and m.get("candidates") == "2" for m in meta.values())
+    other = replace(cfg, sampling=replace(cfg.sampling, select="oracle_cell"))
     with pytest.raises(ValueError, match="other settings"):
         run_suite(other, "uniform", progress=False)
 
@@ -43,10 +43,10 @@ def test_the_oracle_is_labelled_an_upper_bound(tmp_path, checkpoints):
     run_suite(cfg, "uniform", progress=False)
     md = (tmp_path / "uniform" / "summary.md").read_text().splitlines()
     line = next(x for x in md if x.startswith("MADP sampling"))
-    assert "ORACLE: an upper bound, not a controller robots could run" in line
+    assert "kept by oracle: the joint sample of least true J after the step (an upper bound, not a controller robots could run)" in line
 
 
-@pytest.mark.parametrize("select", ["oracle", "mppi"])
+@pytest.mark.parametrize("select", ["oracle", "oracle_joint"])
 def test_batched_rollouts_with_selection_match_lone_rollouts(tmp_path, checkpoints, select):
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), steps=3, madp=str(checkpoints / "madp.safetensors"),
                      sampling=SamplingSettings(select=select, candidates=3))

@@ -10,7 +10,7 @@ import onnxruntime as ort
 import pytest
 import torch
 
-from madp.data_schema.manifest import sha256_file
+from madp.io.checksum import sha256_file
 from madp.export.onnx import GRAPHS, graph_modules
 from madp.policies import shipped_checkpoint
 from tests.robot.robot_testutils import export_tiny

@@ -116,7 +116,9 @@ def test_value_explore_joint_is_the_joint_choice_on_value_explores_map():
     """``value_explore_joint`` keeps, per robot, its action of the copy whose costs on ``value_explore``'s
     map (the prior with ``explore``'s floor), summed over the neighbours it holds, are least. With a
     prior that predicts nothing the floor is all there is, and it changes what robots keep."""
-    from madp.policies.select import local_cell_costs, local_views, select_actions, value_views
+    from madp.models.map_prior import predictor
+    from madp.policies.select import local_cell_costs, local_views, select_actions
+    from madp.selection import RULES, weigh
     from madp.robot.choice import lone_steps
 
     prior = MapPrior().eval()
@@ -125,7 +127,7 @@ def test_value_explore_joint_is_the_joint_choice_on_value_explores_map():
     env = CoverageEnv(Scenario.random(5, SimParams(num_robots=12, num_features=8), launch=(300.0, 300.0, 500.0, 500.0)))
     cands = np.random.default_rng(0).uniform(-3.0, 3.0, (6, 12, 2))
     per_robot = cands.transpose(1, 0, 2)
-    views = value_views(env, local_views(env), prior, floor=True)
+    views = weigh(RULES["value_explore"], env.maps, local_views(env), predictor(prior))
     costs = local_cell_costs(views, per_robot, env.params)
     lone, steps = lone_steps(views, env.params)
     pick = joint_copy(costs, env.neighbour_view()[0])

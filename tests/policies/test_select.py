@@ -1,9 +1,8 @@
-"""Choosing among MADP's samples (madp/policies/select.py).
+"""Choosing among MADP's samples (madp/policies/select.py, the chooser of madp/selection.py).
 
-The contracts: the oracle keeps the joint sample of lowest true J after the step; the local rules
-(``cell``, ``mppi``) see only a robot's own map and its neighbours within r_c; ``mppi`` spans the
-argmin (λ → 0) and the mean (λ → ∞); K = 1 with select none is MADP's sampling unchanged; bad
-settings are refused in one line.
+The contracts: the oracle keeps the joint sample of lowest true J after the step; a rule on the robot's
+own map sees only that map and its neighbours within r_c; K = 1 with select none is MADP's sampling
+unchanged; bad settings are refused in one line.
 """
 
 import copy
@@ -14,11 +13,13 @@ import torch
 
 import madp.policies.madp as madp_policy
 import madp.policies.select as select_mod
+import madp.selection as selection
 from madp.errors import SettingError
 from madp.models import MADP
 from madp.policies import MADPPolicy, SamplingSettings, noise_generator
-from madp.policies.select import explore_prior, local_cell_costs, local_views, medoid_index, mppi_weights, oracle_costs, select_actions
+from madp.policies.select import explore_prior, local_cell_costs, local_views, oracle_costs, select_actions
 from madp.robot.choice import joint_copy, lone_steps
+from madp.selection import RULES, choose
 from madp.sim.rules import clip_speed
 from madp.sim import CoverageEnv, Scenario, SimParams
 from madp.sim.robot_maps import EXPLORED_BLOCK_M
@@ -113,13 +114,13 @@ def test_the_local_cell_cost_is_what_the_formula_says():
     assert np.ptp(got[0]) > 0
 
 
-def test_the_cell_rule_reads_only_what_a_robot_knows():
+def test_a_robots_choice_on_its_own_map_reads_only_what_it_knows():
     """Robot 0's choice does not change when the world changes outside what it sensed or a robot
     beyond its r_c moves; it does when a neighbour moves or its own sensed map changes."""
     base = CoverageEnv(_scenario(ROBOTS))
     cands = _candidates(2, 5)
     r0 = lambda env: local_cell_costs(local_views(env), cands.transpose(1, 0, 2), env.params)[0]  # noqa: E731
-    choice0 = lambda env: select_actions("cell", env, cands)[0]  # noqa: E731
+    choice0 = lambda env: choose(RULES["explore"], cands.transpose(1, 0, 2), local_views(env), env.params)[0][0]  # noqa: E731
 
     sensed = base.maps.robot_map(0) > 0
     assert sensed.sum() > 1000  # it has seen part of a feature
@@ -229,46 +230,6 @@ def test_explore_prior_is_on_exactly_the_blocks_not_explored_in_every_cell():
         np.testing.assert_array_equal(added[r] > 0, ~all_known & inside[0][:, None] & inside[1][None, :])
 
 
-def test_mppi_spans_the_argmin_and_the_mean(monkeypatch):
-    env = CoverageEnv(_scenario(ROBOTS))
-    cands = _candidates(3, 5)
-    costs = local_cell_costs(local_views(env), cands.transpose(1, 0, 2), env.params)
-    w = mppi_weights(costs)
-    np.testing.assert_allclose(w.sum(1), 1.0)
-    assert (w.argmax(1) == costs.argmin(1)).all() and (w.max(1) < 1).all()
-    np.testing.assert_allclose(mppi_weights(costs * 7 + 3), w)  # λ scales with the costs' spread
-    np.testing.assert_allclose(mppi_weights(np.ones((2, K))), 1 / K)  # no spread: the mean
-    monkeypatch.setattr(select_mod, "MPPI_TEMPERATURE", 1e-9)
-    spread = np.ptp(costs, axis=1) > 0  # robots 3 and 4 see no importance: equal costs
-    assert spread.sum() == 3
-    lone, steps = lone_steps(local_views(env), env.params)  # robots 2-4 hear no one: their own step
-    assert lone.tolist() == [False, False, True, True, True]
-    sharp = select_actions("mppi", env, cands)
-    np.testing.assert_allclose(sharp[~lone], select_actions("cell", env, cands)[~lone], atol=1e-12)
-    np.testing.assert_array_equal(sharp[lone], steps[lone])
-    monkeypatch.setattr(select_mod, "MPPI_TEMPERATURE", 1e9)
-    np.testing.assert_allclose(select_actions("mppi", env, cands)[~lone], cands.mean(0)[~lone], atol=1e-8)
-    assert np.abs(cands.mean(0) - select_actions("cell", env, cands))[~lone].max() > 0.1
-
-
-def test_medoid_keeps_each_robots_most_typical_candidate():
-    """Robot by robot, the candidate of least summed distance to its others, from its own candidates alone."""
-    env = CoverageEnv(_scenario(ROBOTS))
-    cands = _candidates(4, 5)  # [K, N, 2]
-    chosen = select_actions("medoid", env, cands)
-    for i in range(cands.shape[1]):  # a loop here, vectorised in the code
-        sums = [sum(np.hypot(*(cands[k, i] - cands[j, i])) for j in range(len(cands))) for k in range(len(cands))]
-        np.testing.assert_array_equal(chosen[i], cands[int(np.argmin(sums)), i])
-    # an outlier never wins; three equal candidates and one far away: one of the three
-    one = np.array([[[1.0, 0.0]], [[1.0, 0.0]], [[9.0, 9.0]], [[1.0, 0.0]]])
-    np.testing.assert_array_equal(medoid_index(one.transpose(1, 0, 2)), [0])
-    moved = cands.copy()
-    moved[:, 0] += 3.0  # robot 0's choice moves with its own candidates; the others' do not change
-    again = select_actions("medoid", CoverageEnv(_scenario(ROBOTS)), moved)
-    np.testing.assert_array_equal(again[1:], chosen[1:])
-    np.testing.assert_array_equal(again[0], chosen[0] + 3.0)
-
-
 @pytest.mark.parametrize("mode", ["decentralized", "centralized"])
 def test_one_candidate_without_selection_is_the_sampling_unchanged(model, mode):
     """K = 1, select none, the world frame: the model's own sample with the generator's first draw, bit for bit."""
@@ -286,7 +247,7 @@ def test_one_candidate_without_selection_is_the_sampling_unchanged(model, mode):
 
 
 @pytest.mark.parametrize("select,candidates,setting", [
-    ("best", 4, "select"), ("cell", 0, "candidates"), ("none", -1, "candidates"), ("mppi", 2.5, "candidates"),
+    ("best", 4, "select"), ("explore", 0, "candidates"), ("none", -1, "candidates"), ("value", 2.5, "candidates"),
     ("oracle", 1, "select/candidates"), ("none", 4, "select/candidates"),
 ])
 def test_bad_selection_settings_are_refused(select, candidates, setting):
@@ -314,13 +275,13 @@ def test_oracle_joint_is_the_joint_choice_on_the_true_map():
 @pytest.mark.parametrize("args,line", [
     (["eval", "--select", "oracle", "--candidates", "1"], "madp: error: --select/--candidates: select oracle chooses among several samples "
                                      "per robot: expected candidates > 1, got 1"),
-    (["eval", "--candidates", "0", "--select", "cell"], "madp: error: --candidates: expected a whole number of "
+    (["eval", "--candidates", "0", "--select", "explore"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--select", "none", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (oracle, cell, mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, value_explore_joint, oracle_joint), got select none"),
-    (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, oracle, cell, "
-                                                        "mppi, medoid, explore, oracle_cell, value, value_explore, value_joint, "
-                                                        "value_explore_joint, oracle_joint, got 'vote'"),
+                                    "among them (explore, value, value_explore, value_joint, value_explore_joint, oracle, oracle_cell, oracle_joint), got select none"),
+    (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, explore, value, "
+                                                        "value_explore, value_joint, value_explore_joint, oracle, oracle_cell, "
+                                                        "oracle_joint, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):
     """(A rule named alone takes its default K: ``SamplingSettings.of``, tested below.)"""
@@ -328,18 +289,18 @@ def test_bad_selection_flags_are_one_line(tmp_path, args, line):
 
 
 def test_a_rule_named_alone_takes_its_default_number_of_candidates():
-    assert SamplingSettings.of(select="explore").candidates == select_mod.DEFAULT_CANDIDATES > 1
+    assert SamplingSettings.of(select="explore").candidates == selection.DEFAULT_CANDIDATES > 1
     assert SamplingSettings.of(select="none").candidates == 1
     assert SamplingSettings.of(select="oracle", candidates=16).candidates == 16
     default = SamplingSettings.of()
     assert (default.select, default.candidates) == (SamplingSettings().select, SamplingSettings().candidates)
-    assert default.select == select_mod.DEFAULT_SELECT
+    assert default.select == selection.DEFAULT_RULE
 
 
 def test_rollout_refuses_bad_selection_flags_in_one_line(tmp_path):
     sc = tmp_path / "s.json"
     sc.write_text('{"features": [], "robots": [[1, 1]]}')
-    code, err = cli("rollout", "--scenario", sc, "--controller", "madp", "--select", "mppi", "--candidates", "1")
+    code, err = cli("rollout", "--scenario", sc, "--controller", "madp", "--select", "explore", "--candidates", "1")
     assert_one_line(code, err, "--select/--candidates")
 
 
@@ -364,7 +325,7 @@ def _equivariance_misses(model, monkeypatch, select: str, seeds: tuple[int, ...]
     return misses, total
 
 
-@pytest.mark.parametrize("select,seeds", [("cell", (0,)), ("medoid", (0,)), ("explore", (0, 1, 2))])
+@pytest.mark.parametrize("select,seeds", [("oracle_cell", (0,)), ("explore", (0, 1, 2))])
 def test_choosing_among_samples_keeps_the_policy_equivariant(model, monkeypatch, select, seeds):
     """The robot's window blocks and its candidates move with the world's symmetry, so these rules
     choose the image of the same candidate: exactly equivariant, as one sample is. For ``explore`` its

@@ -1,5 +1,5 @@
 """``madp rollout --record PATH --record-format F``: a rollout recorded while it runs, as a Foxglove MCAP
-(:func:`madp.eval.record.write_rollout_mcap`) or a rosbag2 MCAP file (:func:`madp.robot.ros2.write_rosbag`)."""
+(:func:`madp.recordings.record.write_rollout_mcap`) or a rosbag2 MCAP file (:func:`madp.robot.ros2.write_rosbag`)."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import strategies as st
 
 from madp.errors import InputError
-from madp.eval.cities import import_city
+from madp.cities.importer import import_city
 
 from ..fuzzing import JSON, damage, mutate, twins
 

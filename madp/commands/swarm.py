@@ -21,7 +21,7 @@ def swarm_cmd(
 ) -> None:
     """Run a swarm as one process per robot (the exported policy, torch-free) over Zenoh; the world
     process simulates physics, sensors and the radio. Writes OUT/summary.json and OUT/swarm.mcap."""
-    from madp.cli_rollout import network_settings
+    from madp.commands.rollout import network_settings
     from madp.swarm import run_swarm
 
     net = network_settings(network) if network is not None else None

@@ -5,11 +5,11 @@ The paper's real-world suite (``cities/README.md``) builds one scenario per city
 traffic signal inside it. This module turns a file of signal locations into such a scenario:
 
 1. **Read** the signals (WGS84 degrees) from a CSV, GeoJSON or Overpass JSON file, optionally
-   gzipped (:mod:`madp.eval.signal_files`).
+   gzipped (:mod:`madp.cities.signal_files`).
 2. **Project** them to local metres about a reference point, on the WGS84 ellipsoid
-   (:mod:`madp.eval.geometry`).
+   (:mod:`madp.cities.geometry`).
 3. **Choose the square**: the ``side x side`` square holding the most signals, found exactly
-   (:func:`madp.eval.geometry.find_best_square`), the search repeated in a frame re-projected about
+   (:func:`madp.cities.geometry.find_best_square`), the search repeated in a frame re-projected about
    the chosen square's centre until that centre sits within 1 cm of the frame's reference point
    (normally 2-3 rounds), so the square and the features are expressed in a projection accurate
    about the square itself.

@@ -18,19 +18,21 @@ from typer.testing import CliRunner
 
 from madp.cli import app
 from madp.errors import InputError
-from madp.eval.results_pages import END, load_kept, render, replace_blocks, update_pages
+from madp.results.notes import AGREE
+from madp.results.pages import END, load_kept, render, replace_blocks, update_pages
 
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", ROOT / "docs"]
 
 
-def write_run(root: Path, rel: str, suite: str, groups: dict[str, int], costs: dict[str, np.ndarray]) -> None:
+def write_run(root: Path, rel: str, suite: str, groups: dict[str, int], costs: dict[str, np.ndarray],
+              seeds_of: str | None = None) -> None:
     """A suite directory of madp eval: ``costs[controller]`` holds one final cost per environment, the
     environments being ``groups``' in order (group → count; an environment's seed depends on its group
-    and index alone, as the suites' do)."""
+    and index alone, as the suites' do, or on group ``seeds_of``'s: the faults suite's are uniform's)."""
     envs = [(g, i) for g, n in groups.items() for i in range(n)]
-    rows = [(suite, g, i, 1000 * (1 + zlib.crc32(g.encode()) % 1000) + i, c, float(costs[c][k]), 1.0)
-            for c in costs for k, (g, i) in enumerate(envs)]
+    seed = lambda g, i: 1000 * (1 + zlib.crc32((seeds_of or g).encode()) % 1000) + i  # noqa: E731
+    rows = [(suite, g, i, seed(g, i), c, float(costs[c][k]), 1.0) for c in costs for k, (g, i) in enumerate(envs)]
     names = ["suite", "group", "env", "scenario_seed", "controller", "final_cost", "mean_step_ms"]
     table = pa.table({n: [r[j] for r in rows] for j, n in enumerate(names)})
     (root / rel).mkdir(parents=True)
@@ -75,7 +77,7 @@ def test_merged_runs_must_share_their_environments_and_not_a_controller(folder):
     write_run(root, "base-2/uniform", "uniform", {"uniform": 5}, {"clairvoyant": dcvt[:5]})
     write_run(root, "base-3/uniform", "uniform", {"uniform": 6}, {"dcvt": dcvt})
     spec = json.loads((root / "kept.json").read_text())
-    spec["runs"].update({"base-2": {}, "base-3": {}})
+    spec["runs"].update({n: {"date": "2026-12-01", "commit": "0000000"} for n in ("base-2", "base-3")})
     for extra, message in (("base-2/uniform", "hold other environments"), ("base-3/uniform", "is in both")):
         spec["default"]["dirs"] = ["mine-1/uniform", "base-1/uniform", extra]
         (root / "kept.json").write_text(json.dumps(spec))
@@ -179,3 +181,45 @@ def test_the_network_block_pairs_every_group_with_the_ideal_network(tmp_path):
     assert (f"| `loss_30` | {d['dcvt'].mean():+.3f} ± {se['dcvt']:.3f} | {d['madp'].mean():+.3f} ± {se['madp']:.3f} |"
             in blocks["network"])
     assert f"{costs['madp'][5:].mean():.3f}: {d['madp'].mean():+.3f} ± {se['madp']:.3f}" in blocks["network-detail"]
+
+
+def test_the_network_default_note_names_the_environments_that_end_apart(folder):
+    root, madp, dcvt, _ = folder
+    ideal = {"madp": madp.copy(), "dcvt": dcvt + AGREE / 100}  # DCVT within rounding, MADP apart on one
+    ideal["madp"][1] += 0.01
+    write_run(root, "net-1/faults", "faults", {"ideal": 6}, ideal, seeds_of="uniform")
+    spec = json.loads((root / "kept.json").read_text())
+    spec["default"]["dirs"].append("net-1/faults")
+    spec["runs"]["net-1"] = {"date": "2026-01-04", "commit": "fedcba9"}
+    (root / "kept.json").write_text(json.dumps(spec))
+    note = render(load_kept(root))["network-default"]
+    assert note == ("The `ideal` network's environments are the 6 of `uniform` above, with the same seeds; they end "
+                    f"where the default's run ends, to 0.001, for DCVT on all 6, MADP on 5 of 6 (`uniform-001` "
+                    f"{ideal['madp'][1]:.3f} against {madp[1]:.3f}).")
+
+
+def test_the_step_time_block_is_the_kept_benchmark_at_the_default(folder):
+    root = folder[0]
+    runs = render(load_kept(root))["step-time"]  # the kept runs' own times (1 ms a step in write_run)
+    assert runs.endswith("| `uniform` | 1.0 | 1.0 | 2026-01-01 `abc1234`, 2026-01-02 `def5678` |") and "One control" not in runs
+    step = {"candidates": 4, "select": "explore", "sampler": "dpm++", "num_steps": 3, "num_robots": 32, "threads": 2,
+            "latency_s": 0.01254}
+    bench = {"paper_latency_s": 0.36, "selection": [{**step, "select": "cell", "latency_s": 0.02}, step],
+             "robot_runtime": {"threads": 1, "mean_neighbourhood": 5.0, "onnxruntime_per_robot_s": 0.00529}}
+    (root / "bench.json").write_text(json.dumps(bench))
+    spec = json.loads((root / "kept.json").read_text())
+    spec["bench"] = {"file": "bench.json", "date": "2026-01-05", "commit": "1234abc", "machine": "2 cores",
+                     "command": "madp bench infer --no-sweep"}
+    (root / "kept.json").write_text(json.dumps(spec))
+    block = render(load_kept(root))["step-time"]
+    assert "(N = 32, PyTorch, 2 threads) | 12.5 ms |" in block and "5.0 robots per neighbourhood) | 5.3 ms |" in block
+    assert "Measured 2026-01-05 at commit `1234abc` on 2 cores: `madp bench infer --no-sweep`" in block
+    assert "`explore` among K = 4, DPM-Solver++(2M) S = 3" in block and "The paper's: 0.36 s" in block
+    bench["selection"] = bench["selection"][:1]
+    (root / "bench.json").write_text(json.dumps(bench))
+    with pytest.raises(InputError, match="no decentralized control step at the default"):
+        render(load_kept(root))
+    del spec["bench"]["commit"]
+    (root / "kept.json").write_text(json.dumps(spec))
+    with pytest.raises(InputError, match="expected commit"):
+        render(load_kept(root))

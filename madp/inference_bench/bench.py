@@ -22,7 +22,7 @@
    (:mod:`madp.export.bench`); with a ``--madp`` policy file that carries a map prior, also under ``value``.
 8. With ``roofline`` (``--roofline``): FLOPs, bytes and time of the evaluation default's control step by
    part (observations, perception, masks, encoder, denoiser × K × S, selection) against this machine's
-   measured matmul peak, fp32 and bf16 (:mod:`madp.eval.roofline`).
+   measured matmul peak, fp32 and bf16 (:mod:`madp.inference_bench.roofline`).
 
 The paper reports 0.36 s per control step (N = 32) on an RTX 3090.
 """
@@ -36,7 +36,7 @@ import numpy as np
 
 from madp.controllers import SAMPLING
 from madp.errors import SettingError
-from madp.models.bench import _threads, _timed, bench_infer
+from madp.models.bench import torch_threads, timed, bench_infer
 
 from madp.policies import load, shipped_checkpoint
 
@@ -106,8 +106,8 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
     (a random uniform-launch scenario) with K candidates per robot at S sampler steps, for every
     (K, S) of ``candidates`` (S ``None``: the default S) and every rule of
-    :data:`madp.policies.select.SELECTS` that fits it (``none`` at K = 1; ``value`` when the
-    checkpoint carries a map prior): the
+    :data:`madp.selection.RULES` that fits it (``none`` at K = 1; those that need a map prior when
+    the checkpoint carries one): the
     policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
     the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
     untrained ``cpu`` preset; the default sampler."""
@@ -115,7 +115,7 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
 
     from madp.models import MADP, madp_config
     from madp.policies import MADPPolicy, SamplingSettings, noise_generator
-    from madp.policies.select import SELECTS
+    from madp.selection import RULES, rule_names
     from madp.sim import CoverageEnv, Scenario, SimParams
 
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
@@ -126,13 +126,14 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     prior = load_map_prior(path, device) if path else None
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     rows = []
-    with _threads(threads):
+    with torch_threads(threads):
         for k, steps in candidates:
-            for select in SELECTS[:1] if k == 1 else [s for s in SELECTS[1:] if not s.startswith("value") or prior is not None]:
+            for select in rule_names(sees=("samples",)) if k == 1 else [
+                    s for s in rule_names(sees=("own map", "true map", "world")) if not RULES[s].prior or prior is not None]:
                 sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
                 policy = MADPPolicy(model, "decentralized", sampling, device=device, map_prior=prior)
                 gen = noise_generator(seed)
-                times = _timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
+                times = timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
                 rows.append({"candidates": k, "select": select, "num_robots": num_robots, "sampler": policy.sampler,
                              "num_steps": policy.num_steps, "threads": torch.get_num_threads(), "device": device,
                              "checkpoint": path, "latency_s": float(np.median(times)), "latency_min_s": min(times)})
@@ -154,7 +155,7 @@ def closed_loop_sweep(checkpoint: str, sweep_out: Path, grid: dict[str, tuple[in
     """Run (or resume, or read) the sweep; returns the per-setting statistics and S* per sampler."""
     from madp.policies import SamplingSettings
 
-    from .runner import EvalConfig, run_suite
+    from madp.eval.runner import EvalConfig, run_suite
 
     settings = [BASELINE] + [(s, k) for s, ks in grid.items() for k in ks if (s, k) != BASELINE]
     costs, step_ms = {}, {}
@@ -233,7 +234,7 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
     every setting of ``grid`` (DDIM-50 included). ``candidates``: also :func:`bench_select` at those K;
     ``robot``: also one robot's control step through ``madp export``'s files
     (:func:`madp.export.bench.bench_robot_runtime`); ``roofline``: also the control step's roofline at a
-    ``uniform`` environment's start and after ``roofline_after`` expert steps (:func:`madp.eval.roofline.roofline`)."""
+    ``uniform`` environment's start and after ``roofline_after`` expert steps (:func:`madp.inference_bench.roofline.roofline`)."""
     grid = grid or dict(DEFAULT_GRID)
     out: dict = {"paper_latency_s": PAPER_LATENCY_S, "sweep": None, "device": device, "swept": sweep}
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)

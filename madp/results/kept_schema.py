@@ -1,4 +1,4 @@
-"""The schema of a results folder's ``kept.json`` (:mod:`madp.eval.results_pages` reads it): every field's
+"""The schema of a results folder's ``kept.json`` (:mod:`madp.results.pages` reads it): every field's
 type, checked before a field is used, so a wrong one is a one-line :class:`madp.errors.InputError`
 naming the file and the field (``default.dirs``, ``options[2].label``, ``runs.NAME.commit``), never a
 TypeError deep in the report.

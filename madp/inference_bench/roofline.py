@@ -56,7 +56,7 @@ import numpy as np
 import torch
 
 from madp.errors import SettingError
-from madp.models.bench import _threads, _timed, matmul_flops_per_s
+from madp.models.bench import torch_threads, timed, matmul_flops_per_s
 
 #: The parts of a control step, in table order; :data:`MODEL_PARTS` run in torch (on ``device``).
 PARTS = ("observations", "perception", "masks", "encoder", "denoiser", "selection")
@@ -148,21 +148,23 @@ def observation_costs(env) -> tuple[int, int]:
 
 def selection_costs(env, select: str, candidates: int) -> tuple[int, int]:
     """(FLOPs, bytes) of rule ``select`` choosing among ``candidates`` K at ``env``'s state (module
-    docstring): the map rules (``cell``, ``explore``, ``mppi``, ``oracle_cell``), ``medoid`` and ``none``."""
-    from madp.robot.choice import MAP_RULES, explore_prior, local_views
+    docstring): ``none`` and the rules that rank, robot by robot, on the mean of the explored blocks or on
+    the true map (not the learned prior's: its network is timed, not counted)."""
+    from madp.robot.choice import local_views
+    from madp.selection import RULES, weigh
 
     n, k = env.num_robots, candidates
-    if select == "none":
+    r = RULES.get(select)
+    if r is not None and not r.ranks and not r.bound:
         return 0, 0
-    if select == "medoid":
-        return 6 * n * k * k, F32 * 2 * n * k
-    if select not in (*MAP_RULES, "oracle_cell"):
-        raise SettingError("select", f"the roofline counts the map rules, medoid and none, got {select!r}")
-    views = local_views(env, true_map=select == "oracle_cell")
+    if r is None or not r.ranks or r.prior or r.joint:
+        raise SettingError("select", f"the roofline counts none and the rules that rank on the explored mean or the "
+                                     f"true map, got {select!r}")
+    views = local_views(env, true_map=r.sees == "true map")
     s, g = env.maps.local_size, views.weights.shape[1]
     flops, traffic = n * s * s, F32 * n * s * s + 8 * n * g * g
-    if select == "explore":
-        views = explore_prior(env, views)
+    if r.weigh is not None:  # the explored blocks' mean on the unexplored ones
+        views = weigh(r, env.maps, views)
         flops, traffic = flops + 2 * n * g * g, traffic + (8 + 1 + 8) * n * g * g
     blocks = (views.weights != 0).sum((1, 2))
     flops += int((blocks * (5 * views.valid.sum(1) + 7 * k)).sum())
@@ -203,7 +205,7 @@ def measure_peaks(cfg, device: str = "cpu", rows: int = 2048, square: int | None
         out[f"peak_{dtype}"] = max(x["flops_per_s"] for x in out["matmul"] if x["dtype"] == dtype)
     a = torch.empty(16 << 20, device=device)
     b = torch.empty_like(a)
-    out["copy_bytes_per_s"] = 2 * a.numel() * F32 / statistics.median(_timed(lambda: b.copy_(a), 2, 10, device))
+    out["copy_bytes_per_s"] = 2 * a.numel() * F32 / statistics.median(timed(lambda: b.copy_(a), 2, 10, device))
     out["ridge_flop_per_byte"] = out["peak_float32"] / out["copy_bytes_per_s"]
     return out
 
@@ -272,7 +274,7 @@ def _load() -> float | None:
 def _median_s(fn, repeats: int, device: str, bf16: bool = False) -> float:
     dev = torch.device(device).type
     with torch.inference_mode(), torch.autocast(dev, dtype=torch.bfloat16, enabled=bf16):
-        return statistics.median(_timed(fn, 1, repeats, device))
+        return statistics.median(timed(fn, 1, repeats, device))
 
 
 def _rate(flops: int, time_s: float, peak: float) -> dict:
@@ -355,7 +357,7 @@ def roofline(checkpoint: str | None = None, after_steps: int = 300, repeats: int
     sampling = SamplingSettings()
     load_before = _load()
     devices = ["cpu"] + ([device] if torch.device(device).type != "cpu" else [])
-    with _threads(threads):
+    with torch_threads(threads):
         before = {d: measure_peaks(model.config, d, square=square) for d in devices}
         states = [{"state": name, **measure_state(model, env, sampling, repeats, device)}
                   for name, env in roofline_states(after_steps, index)]

@@ -38,19 +38,20 @@ import numpy as np
 
 from madp.controllers import ORACLES, SAMPLING, display_name, split_name
 from madp.errors import InputError
-from madp.eval.kept_schema import check_kept
+from madp.results.kept_schema import check_kept
 from madp.io.jsonfile import read_json
 
-from .paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
-from .stats import CONFIDENCE, natural_key, order_controllers, order_groups, paired_stats, summarize
-from .tables import ALL_ROW, SAMPLER_NAMES, best_markdown
+from madp.eval.paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
+from madp.eval.stats import CONFIDENCE, natural_key, order_controllers, order_groups, paired_stats, summarize
+from madp.eval.tables import ALL_ROW, SAMPLER_NAMES, best_markdown
 
 __all__ = ["BLOCKS", "KEPT_FILE", "Kept", "load_kept", "render", "replace_blocks", "update_pages"]
 
 #: The file of a results folder that names the kept runs.
 KEPT_FILE = "kept.json"
 #: The names of the blocks :func:`render` writes.
-BLOCKS = ("headline", "default", "cities", "options", "provenance", "network", "network-detail")
+BLOCKS = ("headline", "default", "cities", "options", "provenance", "network", "network-detail", "network-default",
+          "step-time")
 #: The suite whose groups are networks, not scenarios: the ``network`` blocks tabulate it, paired
 #: against its ideal group, and the scenario tables leave it out.
 NETWORK_SUITE = "faults"
@@ -74,7 +75,7 @@ class Kept:
 def _read_dir(root: Path, rel: str) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     import pyarrow.parquet as pq
 
-    from .compare import load_run
+    from madp.eval.compare import load_run
 
     run = load_run(root / rel)  # one suite, finite costs, every controller on every environment
     schema = pq.read_schema(root / rel / "results.parquet")
@@ -289,7 +290,7 @@ def network_tables(kept: Kept) -> tuple[str, str]:
     each group's mean, the survivors' reference, bytes on the air, environments that end above J(0))."""
     if NETWORK_SUITE not in kept.default:
         return (f"No kept `{NETWORK_SUITE}` results.",) * 2
-    from .faults import faults_sections
+    from madp.eval.faults import faults_sections
 
     cols = kept.default[NETWORK_SUITE]
     controllers = order_controllers(cols["controller"].tolist())
@@ -315,11 +316,14 @@ def _controllers_of(kept: Kept, rel: str) -> list[str]:
 
 def render(kept: Kept) -> dict[str, str]:
     """Every block of :data:`BLOCKS` as Markdown (no trailing newline)."""
+    from .notes import network_default_note, step_time_table
+
     summaries = _summaries(kept)
     network, network_detail = network_tables(kept)
     return {"headline": headline(summaries), "default": default_table(summaries), "cities": cities_table(summaries),
             "options": options_table(kept), "provenance": provenance_table(kept), "network": network,
-            "network-detail": network_detail}
+            "network-detail": network_detail, "network-default": network_default_note(kept, NETWORK_SUITE),
+            "step-time": step_time_table(kept, summaries, run_of)}
 
 
 # --------------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tests of the city importer (``madp.eval.cities``, ``signal_files``, ``geometry``): readers, projection,
+"""Tests of the city importer (``madp.cities.importer``, ``signal_files``, ``geometry``): readers, projection,
 square search, features."""
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from madp.eval.cities import CityScenarioSource, import_city, load_city_dir
-from madp.eval.geometry import WGS84_A, WGS84_F, find_best_square, project_local, unproject_local
-from madp.eval.signal_files import read_signals
+from madp.cities.importer import CityScenarioSource, import_city, load_city_dir
+from madp.cities.geometry import WGS84_A, WGS84_F, find_best_square, project_local, unproject_local
+from madp.cities.signal_files import read_signals
 
 from tests.conftest import CITIES as CITIES_DIR
 

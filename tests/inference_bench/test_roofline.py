@@ -7,9 +7,9 @@ import json
 import pytest
 import torch
 
-from madp.eval.roofline import MODEL_PARTS, PARTS, format_roofline, model_costs, model_parts
+from madp.inference_bench.roofline import MODEL_PARTS, PARTS, format_roofline, model_costs, model_parts
 from madp.models import MADP
-from madp.models.bench import _count_bytes, _count_flops, random_swarm
+from madp.models.bench import count_bytes, count_flops, random_swarm
 from madp.policies import SamplingSettings
 from tests.models.models_testutils import tiny_madp_config
 from tests.test_reliability_errors import cli
@@ -18,7 +18,7 @@ from tests.test_reliability_errors import cli
 @pytest.mark.parametrize("overrides,layout,sampling", [
     ({}, "uniform", SamplingSettings()),
     ({"cnn_norm": "none", "mlp_ratio": 2, "time_embed_dim": 16, "n_dec_layers": 3}, "square",
-     SamplingSettings(sampler="ddim", sampling_steps=2, select="medoid", candidates=3)),
+     SamplingSettings(sampler="ddim", sampling_steps=2, select="oracle_cell", candidates=3)),
 ])
 def test_analytic_costs_are_what_torch_counts(overrides, layout, sampling):
     torch.manual_seed(0)
@@ -33,9 +33,9 @@ def test_analytic_costs_are_what_torch_counts(overrides, layout, sampling):
     assert set(costs) == set(MODEL_PARTS) == set(parts)
     with torch.inference_mode():
         for part, fn in parts.items():
-            assert costs[part][0] == pytest.approx(_count_flops(fn), rel=0.02), part
-            assert costs[part][1] == pytest.approx(_count_bytes(fn), rel=0.02), part
-        whole = _count_flops(lambda: model.sample_decentralized(obs, pos, sampling.sampling_steps, sampling.eta,
+            assert costs[part][0] == pytest.approx(count_flops(fn), rel=0.02), part
+            assert costs[part][1] == pytest.approx(count_bytes(fn), rel=0.02), part
+        whole = count_flops(lambda: model.sample_decentralized(obs, pos, sampling.sampling_steps, sampling.eta,
                                                                 sampler=sampling.sampler, copies=sampling.candidates))
     assert sum(c[0] for c in costs.values()) == pytest.approx(whole, rel=0.02)  # the parts are the whole call
 

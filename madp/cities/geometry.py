@@ -18,7 +18,7 @@ is why the ellipsoid's radii are used. The projection degenerates near the poles
 broken by the square whose centre is nearest the centroid of all signals, then the lowest x0, then
 the lowest y0. (``cities/SOURCES.md`` lists the same best counts, computed on a sphere, for 39 of
 the 40 cities; Milpitas holds 15 signals on the ellipsoid where the sphere's 0.3 % longer
-north-south distances give 14.) :func:`madp.eval.cities.import_city` repeats the search in a frame
+north-south distances give 14.) :func:`madp.cities.importer.import_city` repeats the search in a frame
 re-projected about the chosen square's centre until that centre sits within 1 cm of the frame's
 reference point (normally 2-3 rounds), so the square and the features are expressed in a projection
 accurate about the square itself.

@@ -14,9 +14,6 @@ import typer
 from madp.errors import SettingError
 from madp.io.atomic import write_json_atomic
 
-#: ``--runtime``: how decentralized MADP runs.
-RUNTIMES = ("torch", "onnx")
-
 
 def network_settings(text: str):
     """``--network``: a faults-suite group's network, or NAME=VALUE items (:meth:`NetworkSettings.parse`)."""
@@ -35,7 +32,7 @@ def check_runtime(runtime: str, controller: str) -> None:
     """Refuse, before anything is read or run, a ``--runtime`` that is not one of :data:`RUNTIMES`,
     ``onnx`` for a controller other than decentralized MADP, or ``onnx`` without madp's ``onnx`` extra."""
     from madp.controllers import controller_info
-    from madp.eval.runner import ONNX_MODULES, check_extra
+    from madp.eval.runner import ONNX_MODULES, RUNTIMES, check_extra
 
     if runtime not in RUNTIMES:
         raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {runtime!r}")
@@ -48,8 +45,8 @@ def check_runtime(runtime: str, controller: str) -> None:
 
 def check_record(record_format: str) -> None:
     """Refuse, before anything runs, a ``--record-format`` that is not one of
-    :data:`madp.eval.recorders.RECORD_FORMATS`, or ``ros2`` without madp's ``ros2`` extra."""
-    from madp.eval.recorders import RECORD_FORMATS
+    :data:`madp.recordings.recorders.RECORD_FORMATS`, or ``ros2`` without madp's ``ros2`` extra."""
+    from madp.recordings.recorders import RECORD_FORMATS
     from madp.eval.runner import check_extra
 
     if record_format not in RECORD_FORMATS:
@@ -86,7 +83,7 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
     """``madp rollout`` with its options' values: write the result JSON (and the recording, the video)
     and print a line for each."""
     from madp.controllers import controller_info, make_controller, resolve_checkpoint
-    from madp.eval.recorders import recorder
+    from madp.recordings.recorders import recorder
     from madp.policies import SamplingSettings
     from madp.policies.device import resolve_device
     from madp.sim import CoverageEnv, Scenario, rollout as run

@@ -1,11 +1,11 @@
-"""Tests of the rollout recorder (``madp.eval.record``): topics, counts, geometry, determinism."""
+"""Tests of the rollout recorder (``madp.recordings.record``): topics, counts, geometry, determinism."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from madp.eval.record import (
+from madp.recordings.record import (
     METADATA_NAME,
     recorded_steps,
     robot_colors,

@@ -8,7 +8,7 @@ from typing import List, Optional
 
 import typer
 
-from madp.cli_main import ray_option
+from madp.commands.main import ray_option
 from madp.errors import SettingError
 from madp.io.atomic import write_json_atomic
 
@@ -111,7 +111,7 @@ def bench_infer_cmd(
     out: Optional[Path] = typer.Option(None, help="Also write the figures as JSON here."),
 ) -> None:
     """MADP: the fewest sampler steps S* that cost nothing in closed loop, and the latency per control step there."""
-    from madp.eval.bench import bench_infer_all, format_table, parse_candidates, parse_grid, parse_presets
+    from madp.inference_bench.bench import bench_infer_all, format_table, parse_candidates, parse_grid, parse_presets
     from madp.policies.device import resolve_device
 
     r = bench_infer_all(str(madp) if madp else None, sweep_out, parse_grid(grid) if grid else None, envs=envs, steps=steps,

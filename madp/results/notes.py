@@ -1,0 +1,121 @@
+"""Two blocks of ``madp eval report`` beside the tables of :mod:`madp.results.pages`:
+
+* ``step-time``: how long a control step takes at the default: the wall times the default's kept runs
+  recorded and, where ``kept.json``'s ``bench`` entry (``{"file", "date", "commit", "machine", "command"}``)
+  names a kept ``madp bench infer --out`` file, its swarm's and robot's step;
+* ``network-default``: where the ``faults`` suite's ideal network and the default's run of the same
+  environments differ, environment by environment, and why they may.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from madp.controllers import display_name
+from madp.errors import InputError
+from madp.io.jsonfile import read_json
+
+from madp.eval.stats import order_controllers
+
+#: What these blocks read: a :class:`madp.results.pages.Kept` (this module does not import that one, which
+#: imports it) and its ``runs`` entry of a directory (:func:`madp.results.pages.run_of`).
+Kept = Any
+RunOf = Callable[[dict, str], "dict | None"]
+
+__all__ = ["network_default_note", "run_step_times", "step_time_table"]
+
+#: Final costs closer than this agree: the tables' last digit (float rounding moves LPAC-K3's by ~1e-7).
+AGREE = 1e-3
+
+
+def _default_step(bench: dict[str, Any], where: str) -> tuple[dict[str, Any], str]:
+    """The benchmark's entry for the evaluation default's decentralized control step (sampler, S, rule, K
+    of :class:`madp.policies.SamplingSettings`) and its description."""
+    from madp.models.samplers import DEFAULT_SAMPLER
+    from madp.policies import SamplingSettings
+
+    d = SamplingSettings()
+    entry = next((x for x in bench.get("selection") or [] if x.get("select") == d.select and x.get("candidates") == d.candidates
+                  and x.get("sampler") == d.sampler and x.get("num_steps") == d.sampling_steps), None)
+    if entry is None:
+        raise InputError(f"{where}: no decentralized control step at the default ({d.sampler} S = {d.sampling_steps}, "
+                         f"`{d.select}` among K = {d.candidates}); measure it with madp bench infer --candidates "
+                         f"{d.candidates}:{d.sampling_steps} --grid {DEFAULT_SAMPLER}:{d.sampling_steps}")
+    return entry, f"`{d.select}` among K = {d.candidates}, DPM-Solver++(2M) S = {d.sampling_steps}, frame {d.frame}"
+
+
+def run_step_times(kept: Kept, summaries: dict[str, dict[str, Any]], run_of: RunOf) -> str:
+    """Each controller's mean wall time per control step and environment in the default's kept runs, per
+    suite, with the dates and commits of the runs it comes from."""
+    controllers = order_controllers(c for s in summaries.values() for c in s["controllers"])
+    lines = ["| suite | " + " | ".join(map(display_name, controllers)) + " | measured |",
+             "| --- " * (len(controllers) + 2) + "|"]
+    for suite, summary in summaries.items():
+        stats = summary["overall"]
+        runs = dict.fromkeys(f"{r.get('date', '')} `{r.get('commit', '')}`" for rel in kept.spec["default"]["dirs"]
+                             if kept.configs[rel].get("suite") == suite and (r := run_of(kept.spec, rel)) is not None)
+        cells = [f"{stats[c]['mean_step_ms']:.1f}" if c in stats else "—" for c in controllers]
+        lines.append(f"| `{suite}` | " + " | ".join(cells) + f" | {', '.join(runs)} |")
+    return "\n".join(lines)
+
+
+def step_time_table(kept: Kept, summaries: dict[str, dict[str, Any]], run_of: RunOf) -> str:
+    """How long a control step takes at the default: the kept runs' own wall times
+    (:func:`run_step_times`) and, where ``kept.json`` names one, the kept benchmark's swarm and robot
+    steps with the command, the machine, the date and the commit."""
+    lines = ["`madp eval`'s wall time per control step and environment (ms, mean over the environments) in the "
+             "runs above: one thread per worker process, a worker on every core; a learned controller steps 8 "
+             "environments at a time, each charged an eighth of the batch's step. It depends on what else the "
+             "machine ran.", "", run_step_times(kept, summaries, run_of)]
+    spec = kept.spec.get("bench")
+    if not spec:
+        return "\n".join(lines)
+    where = f"{kept.root / 'kept.json'}: bench"
+    missing = [k for k in ("file", "date", "commit", "machine", "command") if not spec.get(k)]
+    if missing:
+        raise InputError(f"{where}: expected {', '.join(missing)}")
+    bench = read_json(kept.root / spec["file"], "expected the figures of madp bench infer --out")
+    entry, settings = _default_step(bench, str(kept.root / spec["file"]))
+    lines += ["", f"One control step of MADP at the default ({settings}), observations and choice included:", "",
+              "| control step | time | measured |", "| --- | --- | --- |",
+              f"| the swarm's decentralized step, every robot on its own neighbourhood (N = {entry.get('num_robots')}, "
+              f"PyTorch, {entry.get('threads')} threads) | {entry['latency_s'] * 1e3:.1f} ms | median of the calls |"]
+    robot = bench.get("robot_runtime")
+    if robot:
+        lines.append(f"| one robot's step, the torch-free runtime of `madp export` (onnxruntime, {robot.get('threads')} "
+                     f"thread; {robot.get('mean_neighbourhood'):.1f} robots per neighbourhood) | "
+                     f"{robot['onnxruntime_per_robot_s'] * 1e3:.1f} ms | mean over the swarm's robots |")
+    lines += ["", f"Measured {spec['date']} at commit `{spec['commit']}` on {spec['machine']}: `{spec['command']}` "
+                  f"(`{spec['file']}`)."]
+    if bench.get("paper_latency_s"):
+        lines[-1] += f" The paper's: {bench['paper_latency_s']} s per control step on an RTX 3090."
+    return "\n".join(lines)
+
+
+def network_default_note(kept: Kept, network_suite: str = "faults", ideal: str = "ideal") -> str:
+    """For each controller, the environments where the network suite's ideal group and the default's run
+    of the same scenarios (matched by seed) end apart, by :data:`AGREE` or more."""
+    if network_suite not in kept.default:
+        return f"No kept `{network_suite}` results."
+    net = kept.default[network_suite]
+    base = {}  # (scenario seed, controller) -> (suite, environment key, final cost) in the default's other suites
+    for suite, cols in kept.default.items():
+        if suite != network_suite:
+            base.update({(int(s), str(c)): (suite, f"{g}-{int(e):03d}", float(f)) for s, c, g, e, f in
+                         zip(cols["scenario_seed"], cols["controller"], cols["group"], cols["env"], cols["final_cost"])})
+    sel = net["group"] == ideal
+    rows = [(int(s), str(c), float(f)) for s, c, f in zip(net["scenario_seed"][sel], net["controller"][sel],
+                                                           net["final_cost"][sel]) if (int(s), str(c)) in base]
+    if not rows:
+        return f"The `{network_suite}` suite's `{ideal}` group shares no environment with the default's other runs."
+    parts = []
+    for c in order_controllers([r[1] for r in rows]):
+        pairs = [(base[s, cc], f) for s, cc, f in rows if cc == c]
+        differ = [(key, b, f) for (_, key, b), f in pairs if abs(f - b) >= AGREE]
+        shown = "; ".join(f"`{key}` {f:.3f} against {b:.3f}" for key, b, f in differ[:3]) + ("; …" if len(differ) > 3 else "")
+        parts.append(f"{display_name(c)} on {len(pairs) - len(differ)} of {len(pairs)} ({shown})" if differ
+                     else f"{display_name(c)} on all {len(pairs)}")
+    suites = sorted({base[s, c][0] for s, c, _ in rows})
+    return (f"The `{ideal}` network's environments are the {len({s for s, _, _ in rows})} of "
+            f"{', '.join(f'`{s}`' for s in suites)} "
+            f"above, with the same seeds; they end where the default's run ends, to {AGREE:g}, for " + ", ".join(parts) + ".")

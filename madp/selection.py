@@ -1,0 +1,198 @@
+"""MADP's rules for choosing among its K samples per robot: one record per rule (:data:`RULES`) and the
+one chooser (:func:`choose`) that serves both the simulator's batch (:func:`madp.policies.select.select_actions`,
+every robot of an environment at once) and the robot runtime (:meth:`madp.robot.RobotRuntime.step`, one
+robot). numpy and numba only (no torch).
+
+A rule's record says what it is (:class:`Rule`): its name, a one-line help, what its choice reads (its
+robot's own map, the true map, or the whole world: those two make it an upper bound, not a controller
+robots could run), whether it needs a learned map prior (``madp value train``) and whether it keeps one
+copy per neighbourhood. Its one function, ``weigh``, says what a robot's local cell cost is summed on:
+its window's map with something in the blocks it has not explored. Every list of rules, the command
+line's help, the documentation's table of rules and the summary tables' prose derive from the records.
+
+Nothing here imports torch, numba or the simulator until a rule is applied: the command line lists the
+records, and the robot runtime imports them (``madp-robot`` packages this module).
+
+A new rule is one record in :data:`RULES` and its ``weigh`` function (``docs/extend/rule.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, Optional
+
+import numpy as np
+
+from madp.errors import SettingError
+
+if TYPE_CHECKING:  # the records import nothing heavy: the command line lists them; the functions import on use
+    from madp.robot.choice import LocalViews
+    from madp.robot.prior import Predict
+    from madp.sim.params import SimParams
+    from madp.sim.robot_maps import RobotMaps
+
+__all__ = ["DEFAULT_CANDIDATES", "DEFAULT_RULE", "MAX_CANDIDATES", "RULES", "SEES", "Rule", "check_rule", "choose", "default_candidates",
+           "rule", "rule_names", "rules_table", "select_help", "weigh"]
+
+#: What a rule's choice reads: nothing but the samples, the robot's own map (what it sensed), the true map
+#: in each robot's window, or the whole world (the true J of each joint sample).
+SEES = ("samples", "own map", "true map", "world")
+
+#: ``weigh(maps, views, predict) -> views``: the map each robot's local cell cost is summed on, from its
+#: ``views`` (rows of the robots of ``maps``; ``predict``: the policy file's map prior, or None).
+Weigh = Callable[["RobotMaps", "LocalViews", Optional["Predict"]], "LocalViews"]
+
+
+@dataclass(frozen=True)
+class Rule:
+    """One rule among K samples per robot.
+
+    ``name``; ``help``: one line, what it keeps; ``sees``: one of :data:`SEES`; ``weigh``: the map its
+    cost is summed on (None: the window's map as it is; unused unless it ranks by the local cell cost);
+    ``prior``: it needs the policy file's learned map prior; ``joint``: each robot keeps its action of
+    the copy whose cost summed over its neighbourhood is least (neighbours send their K costs in one
+    more round of messages), not its own best."""
+
+    name: str
+    help: str
+    sees: str
+    weigh: Optional[Weigh] = None
+    prior: bool = False
+    joint: bool = False
+
+    @property
+    def bound(self) -> bool:
+        """An upper bound that reads the true map or the world, not a controller robots could run."""
+        return self.sees in ("true map", "world")
+
+    @property
+    def ranks(self) -> bool:
+        """It keeps, per robot, the candidate of least local cell cost on a map of its window."""
+        return self.sees in ("own map", "true map")
+
+
+def _explore(maps: RobotMaps, views: LocalViews, predict: Optional[Predict]) -> LocalViews:
+    from madp.robot.choice import map_prior
+
+    return map_prior(maps, views)
+
+
+def _value(maps: RobotMaps, views: LocalViews, predict: Optional[Predict]) -> LocalViews:
+    from madp.robot.prior import value_view
+
+    return value_view(maps, views, predict, floor=False)
+
+
+def _value_floor(maps: RobotMaps, views: LocalViews, predict: Optional[Predict]) -> LocalViews:
+    from madp.robot.prior import value_view
+
+    return value_view(maps, views, predict, floor=True)
+
+
+#: The rules, by name, in the order the help and the tables list them.
+RULES: dict[str, Rule] = {r.name: r for r in (
+    Rule("none", "one sample per robot (K = 1), MADP's plain sampling", "samples"),
+    Rule("explore", "each robot keeps the sample of least cost of its own Voronoi cell on its own map, with the "
+                    "blocks it has not explored at the mean importance of those it has", "own map", _explore),
+    Rule("value", "explore with the policy file's learned map prior in place of the mean", "own map", _value,
+         prior=True),
+    Rule("value_explore", "value with explore's mean as a floor", "own map", _value_floor, prior=True),
+    Rule("value_joint", "value, one copy per neighbourhood: the neighbours' costs of each copy summed", "own map",
+         _value, prior=True, joint=True),
+    Rule("value_explore_joint", "value_joint with explore's mean as a floor", "own map", _value_floor, prior=True,
+         joint=True),
+    Rule("oracle", "the joint sample of least true J after the step", "world"),
+    Rule("oracle_cell", "explore's choice on the true map", "true map"),
+    Rule("oracle_joint", "value_joint's choice on the true map", "true map", joint=True),
+)}
+#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
+DEFAULT_RULE = "explore"
+#: K for a rule named without a number of candidates.
+DEFAULT_CANDIDATES = 4
+#: The most candidates per robot: K samples cost K denoiser passes and K × N actions per step.
+MAX_CANDIDATES = 1024
+
+
+def rule_names(bound: Optional[bool] = None, prior: Optional[bool] = None, joint: Optional[bool] = None,
+               sees: Optional[tuple[str, ...]] = None) -> tuple[str, ...]:
+    """The names of the rules with these properties (None: either), in :data:`RULES`' order."""
+    return tuple(r.name for r in RULES.values() if (bound is None or r.bound == bound)
+                 and (prior is None or r.prior == prior) and (joint is None or r.joint == joint)
+                 and (sees is None or r.sees in sees))
+
+
+def rule(name: str) -> Rule:
+    """The record of rule ``name``; a one-line error naming the setting ``select`` otherwise."""
+    if name not in RULES:
+        raise SettingError("select", f"expected one of {', '.join(RULES)}, got {name!r}")
+    return RULES[name]
+
+
+def default_candidates(name: str) -> int:
+    """K when only the rule is given: 1 for a rule that does not choose (``none``), else
+    :data:`DEFAULT_CANDIDATES`."""
+    return 1 if rule(name).sees == "samples" else DEFAULT_CANDIDATES
+
+
+def check_rule(name: str, candidates: int) -> None:
+    """A one-line :class:`madp.errors.SettingError` unless ``name`` is a rule and ``candidates`` K fits
+    it: K = 1 for ``none``, 1 < K <= :data:`MAX_CANDIDATES` for a rule that chooses."""
+    r = rule(name)
+    if isinstance(candidates, bool) or not isinstance(candidates, (int, np.integer)) or candidates < 1:
+        raise SettingError("candidates", f"expected a whole number of samples per robot >= 1, got {candidates!r}")
+    if candidates > MAX_CANDIDATES:
+        raise SettingError("candidates", f"expected at most {MAX_CANDIDATES} samples per robot, got {candidates}")
+    if r.sees == "samples" and candidates > 1:
+        raise SettingError("select/candidates", f"{candidates} candidates per robot need a rule to choose among "
+                           f"them ({', '.join(rule_names(sees=SEES[1:]))}), got select {name}")
+    if r.sees != "samples" and candidates == 1:
+        raise SettingError("select/candidates", f"select {name} chooses among several samples per robot: "
+                           "expected candidates > 1, got 1")
+
+
+def weigh(r: Rule, maps: RobotMaps, views: LocalViews, predict: Optional[Predict] = None) -> LocalViews:
+    """``views`` on the map rule ``r`` ranks on (its ``weigh``; as they are without one)."""
+    return views if r.weigh is None else r.weigh(maps, views, predict)
+
+
+def choose(r: Rule, candidates_mps: np.ndarray, views: Optional[LocalViews], params: SimParams,
+           neighbours: Optional[np.ndarray] = None) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """The one chooser of a rule that reads samples or a map: ``candidates_mps [R, K, 2]`` (m/s, robot r's
+    K candidates in row r) -> the kept actions ``[R, 2]`` and, for a rule that ranks, each robot's local
+    cell cost of each candidate ``[R, K]`` (else None).
+
+    ``views``: row r what robot r knows, on the map the rule ranks on (:func:`weigh`); ``neighbours``
+    ``[R, R]`` bool: for a ``joint`` rule, whose costs each robot holds (None: each keeps its own best,
+    the provisional action a robot takes before its cost round). A robot that holds no neighbour does
+    not choose: it takes the Lloyd step of the disc it expects to cover (:func:`lone_steps`)."""
+    if r.sees == "samples" or candidates_mps.shape[1] == 1:
+        return candidates_mps[:, 0], None
+    if not r.ranks:
+        raise ValueError(f"selection rule {r.name} reads the world: the simulator chooses for it")
+    from madp.robot.choice import joint_copy, local_cell_costs, lone_steps
+
+    costs = local_cell_costs(views, candidates_mps, params)
+    index = joint_copy(costs, neighbours) if r.joint and neighbours is not None else costs.argmin(1)
+    chosen = np.take_along_axis(candidates_mps, index[:, None, None], 1)[:, 0]
+    lone, steps = lone_steps(views, params)  # a robot that hears no one: its bounded Lloyd step
+    return np.where(lone[:, None], steps, chosen), costs
+
+
+def select_help() -> str:
+    """The command line's help of ``--select``, from the records: the names, the default, the bounds
+    marked as bounds, and where the table of rules is."""
+    names = " | ".join(r.name + (" (an upper bound: reads the " + r.sees + ")" if r.bound else "") for r in RULES.values())
+    return (f"MADP: the rule that keeps one of --candidates K samples per robot (default: {DEFAULT_RULE}; none: "
+            f"K = 1): {names}. What each keeps: docs/concepts/sampling.md; those that rank on a learned map prior "
+            f"({', '.join(rule_names(prior=True))}) need a policy file that carries one (madp value train).")
+
+
+def rules_table() -> str:
+    """The documentation's table of rules (Markdown), from the records."""
+    rows = ["| rule | what it keeps | reads | needs | kind |", "|---|---|---|---|---|"]
+    for r in RULES.values():
+        needs = "a policy file with a map prior (`madp value train`)" if r.prior else "—"
+        kind = "upper bound, not a controller" if r.bound else "controller" + (", joint" if r.joint else "")
+        rows.append(f"| `{r.name}` | {r.help} | {r.sees} | {needs} | {kind} |")
+    return "\n".join(rows)
+
