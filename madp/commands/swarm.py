@@ -17,7 +17,7 @@ def swarm_cmd(
     out: Path = typer.Option(..., help="Output directory: summary.json and swarm.mcap (a rosbag2 log)."),
     network: Optional[str] = typer.Option(None, help="The radio between the robots: a group of the faults suite (ideal, loss_30, delay_1s, fail_25, noise_5m, ...) or NAME=VALUE items as madp rollout --network (default: ideal)."),
     rate_hz: Optional[float] = typer.Option(None, "--rate-hz", help="Run in real time at this rate (Hz): each phase of a step has a deadline (beacons by 25 %, tokens by 60 %, the _joint rules' costs by 90 %, commands by 100 % of the period) and what misses it is lost (default: lockstep, every phase waits for every robot)."),
-    overwrite: bool = typer.Option(False, help="Replace an earlier madp swarm run in --out (its summary.json and swarm.mcap); any other file makes it refuse, naming the file."),
+    overwrite: bool = typer.Option(False, help="Replace an earlier madp swarm run in --out (the files its record madp-swarm.json lists: summary.json, swarm.mcap); any other file makes it refuse, naming the file."),
 ) -> None:
     """Run a swarm as one process per robot (the exported policy, torch-free) over Zenoh; the world
     process simulates physics, sensors and the radio. Writes OUT/summary.json and OUT/swarm.mcap."""

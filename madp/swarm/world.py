@@ -41,8 +41,8 @@ with none left, :meth:`World.running` is False and the run ends there (it does n
 
 What the world drops, never reads and counts per robot (``dropped`` in the summary): ``forged``, a record
 whose seal is not its robot's key (:mod:`madp.swarm.bus`); ``malformed``, one that does not decode
-(junk, a NaN or infinite position, token or cost); ``foreign``, a HELLO, READY or COMMAND naming
-another robot than its key's. None of them changes a run.
+(junk, a NaN or infinite position, token or cost); ``foreign``, one naming another robot than its
+key's. None of them changes a run.
 """
 
 from __future__ import annotations
@@ -197,7 +197,7 @@ class World:
         rec = decode(a.data)
         if rec is None:
             self.dropped["malformed"][i] += 1
-        elif isinstance(rec, (Hello, Ready, Command)) and rec.robot != i:
+        elif (rec.message.sender if isinstance(rec, Sent) else getattr(rec, "robot", i)) != i:
             self.dropped["foreign"][i] += 1
             return None
         return rec

@@ -11,7 +11,8 @@ their command lines, as any local user can. Then, for SECONDS or until the robot
   position, NaN tokens and costs: malformed) and records naming another robot (foreign), and on robot
   0's keys; it subscribes to what the world sends robot 0.
 
-It prints one JSON line: the records each session heard of another robot's keys and what it sent.
+It prints ``connected`` after its first round, then, at the end, one JSON line: the records each
+session heard of another robot's keys and what it sent.
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ def main() -> None:
     subs = [outsider.declare_subscriber(wire.in_key(run, "*", "*"), count("outsider")),
             insider.declare_subscriber(wire.in_key(run, 0, "*"), count("insider_robot0"))]
     sent = {"forged": 0, "malformed": 0, "foreign": 0, "robot0": 0, "outsider": 0}
-    steps = 40
+    steps, first = 40, True
     while time.monotonic() < end and robot_command_lines(parent):
         for name, rec in forged_records(steps, 1):
             k = wire.out_key(run, 1, name)
@@ -116,6 +117,9 @@ def main() -> None:
             outsider.put(wire.out_key(run, 0, name), rec)
             sent["robot0"] += 1
             sent["outsider"] += 1
+        if first:
+            print("connected", flush=True)  # in place: the test's world may start its startup barrier
+            first = False
         time.sleep(0.1)
     for s in subs:
         s.undeclare()

@@ -35,7 +35,9 @@ def export_dir():
     return exported(shipped_checkpoint("madp"), SamplingSettings())
 
 
-def test_forgeries_of_another_local_process_are_dropped_counted_and_change_nothing(tmp_path, export_dir):
+def test_forgeries_of_another_local_process_are_dropped_counted_and_change_nothing(tmp_path, export_dir, monkeypatch):
+    import madp.swarm.world as world
+
     steps = 8
     sc = scenario()
     sc.save(tmp_path / "sc.json")
@@ -46,6 +48,13 @@ def test_forgeries_of_another_local_process_are_dropped_counted_and_change_nothi
                               env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[2])})
     forger.stdin.write(robot_key(secret, 1).hex() + "\n")
     forger.stdin.close()
+    connect = world.World.connect
+
+    def connect_with_the_forger_in_place(self, robots):  # however slow the machine, it forges from startup on
+        assert forger.stdout.readline().strip() == "connected", (tmp_path / "forger.err").read_text()[-2000:]
+        return connect(self, robots)
+
+    monkeypatch.setattr(world.World, "connect", connect_with_the_forger_in_place)
     try:
         s = run_swarm(tmp_path / "sc.json", export_dir, steps, tmp_path / "out", progress=False, secret=secret)
         forger.wait(timeout=60)

@@ -1,6 +1,7 @@
 """The world's real-time rules, against stand-in robots that answer at once (no processes, no Zenoh):
 what misses its phase's deadline is lost for that phase, a command that misses its step's deadline is
-not applied (the robot keeps its last one), and each robot's misses are counted by phase."""
+not applied (the robot keeps its last one), and each robot's misses are counted by phase; forged, malformed
+and foreign records are counted and change nothing."""
 
 from __future__ import annotations
 
@@ -128,3 +129,34 @@ def test_the_cost_round_reaches_who_heard_the_beacon_and_a_late_cost_is_lost():
     s = w.summary([0] * n)
     assert s["robots"][2]["misses_by_phase"] == {"beacon": 0, "token": 0, "cost": 1, "command": 0}
     assert s["messages"]["cost"]["sent"] == 3 * n - 1
+
+
+class Forging(StandIns):
+    """Stand-ins whose robot 1's keys also bring, before each of its answers, a forged record (its seal
+    not robot 1's: data None), junk, a NaN beacon and a record of each kind naming robot 0."""
+
+    def _answer(self, i: int, data: bytes) -> None:
+        if i == 1:
+            rec = wire.decode(data)
+            step = getattr(rec, "step", None)
+            step = rec.message.step if isinstance(rec, wire.Sent) else step
+            now = time.perf_counter()
+            self.queue += [Arrival(1, None, now), Arrival(1, b"\x02junk", now),
+                           Arrival(1, wire.encode_send(0, Message(1, step, np.array([np.nan, 1.0]))), now),
+                           Arrival(1, wire.encode_send(0, Message(0, step, np.array([1.0, 1.0]))), now),
+                           Arrival(1, wire.encode_command(0, step, np.array([5.0, 5.0])), now)]
+        super()._answer(i, data)
+
+
+def test_forged_malformed_and_foreign_records_are_counted_and_change_nothing():
+    clean, forged = Log(), Log()
+    a, b = _world(StandIns(4), None, clean), _world(Forging(4), None, forged)
+    for k in range(3):
+        assert a.step(k) == b.step(k)
+    for k in range(3):
+        assert np.array_equal(clean.applied[k][0], forged.applied[k][0])
+    codes = [0] * 4
+    d = b.summary(codes)["robots"][1]["dropped"]
+    assert d == {"forged": 9, "malformed": 18, "foreign": 18}, d  # before each of 3 answers a step, 3 steps
+    assert a.summary(codes)["dropped"] == {"forged": 0, "malformed": 0, "foreign": 0}
+    assert b.summary(codes)["robots"][0]["dropped"] == {"forged": 0, "malformed": 0, "foreign": 0}
