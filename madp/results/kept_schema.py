@@ -17,15 +17,17 @@ from madp.errors import InputError
 
 __all__ = ["KEPT_SCHEMA", "OPTIONAL", "check_kept"]
 
-#: ``kept.json``: the default's directories, the options measured against it, the runs' dates and commits.
+#: ``kept.json``: the default's directories, the options measured against it, the runs' dates and commits
+#: and, optionally, a kept ``madp bench infer --out`` file of the default's control step.
 KEPT_SCHEMA: dict = {
     "about": str,
     "default": {"label": str, "dirs": [str]},
     "options": [{"name": str, "label": str, "dirs": [str], "report": str}],
     "runs": {str: {"date": str, "commit": str}},
+    "bench": {"file": str, "date": str, "commit": str, "machine": str, "command": str},  # madp.results.notes
 }
 #: Fields that may be absent (by their dotted path with ``[]`` for list items).
-OPTIONAL = frozenset({"about", "default.label", "options", "options[].report", "runs"})
+OPTIONAL = frozenset({"about", "default.label", "options", "options[].report", "runs", "bench"})
 
 _NAMES = {str: "a string", list: "a non-empty list", dict: "an object"}
 

@@ -221,5 +221,5 @@ def test_the_step_time_block_is_the_kept_benchmark_at_the_default(folder):
         render(load_kept(root))
     del spec["bench"]["commit"]
     (root / "kept.json").write_text(json.dumps(spec))
-    with pytest.raises(InputError, match="expected commit"):
-        render(load_kept(root))
+    with pytest.raises(InputError, match="bench.commit: missing"):
+        load_kept(root)
