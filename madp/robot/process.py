@@ -56,6 +56,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--endpoint", required=True, metavar="EP", help="the world's Zenoh endpoint, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--key", required=True, metavar="RUN", help="the run's key (madp/RUN/robot/I/...)")
     p.add_argument("--threads", type=int, default=1, metavar="T", help="onnxruntime threads (default 1)")
+    p.add_argument("--sampling", default=None, metavar="SPEC", help="the export's rule, k or frame changed for this "
+                   "robot, as NAME=VALUE items (madp.sampling: e.g. rule=value_joint,k=8)")
     p.add_argument("--parent", type=int, default=None, metavar="PID",
                    help="exit when this process does (default: the parent process)")
     p.add_argument("--silence-s", type=float, default=120.0, metavar="S",
@@ -213,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .agent import RobotAgent
     from .runtime import RobotRuntime
 
-    runtime = RobotRuntime(args.export, threads=args.threads)
+    runtime = RobotRuntime(args.export, threads=args.threads, sampling=args.sampling)
     link = RobotLink(endpoint, run_key, args.id)
     try:
         start = _handshake(link, args.id, args.silence_s)

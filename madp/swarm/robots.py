@@ -42,7 +42,8 @@ class RobotProcesses:
     ``run_key``. Must be created on the thread that lives as long as the world (the kernel's
     parent-death signal follows the thread that started a child)."""
 
-    def __init__(self, num_robots: int, export_dir: str | Path, endpoint: str, run_key: str, threads: int = 1):
+    def __init__(self, num_robots: int, export_dir: str | Path, endpoint: str, run_key: str, threads: int = 1,
+                 sampling: str | None = None):
         self.logs = Path(tempfile.mkdtemp(prefix="madp-swarm-"))
         env = {**os.environ, **_ONE_THREAD}
         self.procs: list[subprocess.Popen] = []
@@ -50,6 +51,7 @@ class RobotProcesses:
             for i in range(num_robots):
                 cmd = [sys.executable, "-m", "madp.robot", "run", "--export", str(export_dir), "--id", str(i),
                        "--endpoint", endpoint, "--key", run_key, "--threads", str(threads), "--parent", str(os.getpid())]
+                cmd += ["--sampling", sampling] if sampling else []
                 with open(self.logs / f"robot_{i}.log", "wb") as log:
                     self.procs.append(subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                                                        env=env))
