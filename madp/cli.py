@@ -20,6 +20,7 @@ import typer
 
 from madp.commands.main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
+from madp.sampling import sampling_help
 from madp.selection import select_help
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
@@ -46,6 +47,7 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
 
 # MADP's choice among K samples per robot (madp.selection's records), wherever MADP samples.
 SELECT = typer.Option(None, help=select_help())
+SAMPLING = typer.Option(None, "--sampling", help=sampling_help())
 CANDIDATES = typer.Option(None, help="MADP: samples per robot per control step, drawn in one batch (default: 4, or 1 with --select none; K > 1 needs a rule other than none).")
 
 # --- rollout, datagen, datasets ----------------------------------------------------------------
@@ -59,6 +61,7 @@ def rollout(
     out: Path = typer.Option(Path("result.json"), help="Where to write the result JSON."),
     video: Optional[Path] = typer.Option(None, help="Also write the rollout as an MP4 video (steps + 1 frames: map, Voronoi cells, trails, robots, step and J(t)/J(0))."),
     device: str = typer.Option("cpu", help="Where a learned controller's model runs: cpu | cuda | cuda:I | auto (cuda when there is one)."),
+    sampling: Optional[str] = SAMPLING,
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
     network: Optional[str] = typer.Option(None, help="A network between the robots: a group of the faults suite (ideal, loss_30, burst_30, no_comm, distance, bandwidth, delay_1s, fail_25, noise_5m, ...) or NAME=VALUE items, each at most once, e.g. loss=0.3,burst_len=5,loss_at_range=0.6,delay_steps=5,max_age_steps=10,missing=keep,max_bytes_per_step=2000,fail_fraction=0.25,fail_step=200,position_noise_m=5,seed=0 (docs/guides/robots.md; default: none, every robot reads the true state). The result JSON then holds the bytes each robot put on the air per step."),
@@ -69,8 +72,8 @@ def rollout(
     """Run one controller on one scenario; write J(t)/J(0) for t = 0..steps and the final positions."""
     from madp.commands.rollout import run_rollout
 
-    run_rollout(scenario, controller, checkpoint, seed, steps, out, video, device, select, candidates, network, record,
-                record_format, runtime)
+    run_rollout(scenario, controller, checkpoint, seed, steps, out, video, device, sampling, select, candidates, network,
+                record, record_format, runtime)
 
 
 @app.command()
@@ -91,7 +94,8 @@ def datagen(
     overwrite: bool = typer.Option(False, help="Replace a dataset made with other parameters: removes only the files madp wrote there (its manifest, shard records and the shards they list); any other file makes it refuse, naming the file."),
     policy: Optional[Path] = typer.Option(None, help="Expert relabelling (DAgger): this policy.safetensors (MADP decentralized or LPAC-K3) drives; every sample keeps the expert's label."),
     beta: float = typer.Option(0.0, help="With --policy: probability that a step executes the expert's action instead."),
-    select: str = typer.Option("none", help="With an MADP --policy: its rule to choose among its samples, at the rule's default K (none: one sample per robot; explore: the evaluation default). The manifest records it."),
+    sampling: Optional[str] = typer.Option(None, "--sampling", help=sampling_help("With an MADP --policy; default: one sample per robot (rule=none), not the evaluation default, so a dataset's bytes do not change with it. The manifest records the rule, K, S and the noise source.")),
+    select: Optional[str] = typer.Option(None, help="With an MADP --policy: its rule to choose among its samples (as --sampling rule=), at the rule's default K."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
     launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; docs/guides/datasets.md)."),
     ray: Optional[str] = ray_option(),
@@ -103,7 +107,7 @@ def datagen(
     params = SimParams(world_size=world_size, num_robots=num_robots, num_features=num_features,
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius_m)
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
-                        policy=learner_settings(policy, beta, select), max_steps=max_steps or (600 if policy else 2100),
+                        policy=learner_settings(policy, beta, sampling, select), max_steps=max_steps or (600 if policy else 2100),
                         launch=launch)
     run_datagen(cfg, out, workers=workers, shards=parse_shards(shards), overwrite=overwrite, ray=ray)
 
@@ -217,12 +221,13 @@ def eval_cmd(
     sampler: Optional[str] = typer.Option(None, help="MADP sampler: ddim | dpm++ (DPM-Solver++(2M)); default: the measured best (docs/reports/2026-12-01-sampler-steps.md)."),
     sampling_steps: Optional[int] = typer.Option(None, min=1, help="Sampler steps S for MADP; default: the measured best."),
     ddim_steps: Optional[int] = typer.Option(None, min=1, hidden=True, help="Old spelling of --sampler ddim --sampling-steps S."),
-    eta: float = typer.Option(0.0, min=0.0, max=1.0, help="DDIM η (DPM-Solver++ is deterministic: 0 only)."),
+    eta: Optional[float] = typer.Option(None, min=0.0, max=1.0, help="DDIM η (default 0; DPM-Solver++ is deterministic: 0 only)."),
     fixed_noise: bool = typer.Option(False, "--fixed-noise", help="MADP: draw each robot's initial noise once per episode, not every step."),
-    frame: str = typer.Option("d4", help="MADP: d4 (the default: a random rotation/reflection of the world per step, shared by the swarm) | world (the world's own axes)."),
+    sampling: Optional[str] = SAMPLING,
+    frame: Optional[str] = typer.Option(None, help="MADP: d4 (the default: a random rotation/reflection of the world per step, shared by the swarm) | world (the world's own axes)."),
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
-    precision: str = typer.Option("fp32", help="MADP: fp32 | bf16 (the transformer's linear layers in bfloat16, the rest in float32: faster on CPUs with bfloat16 instructions; actions within bf16 rounding of fp32's)."),
+    precision: Optional[str] = typer.Option(None, help="MADP: fp32 (the default) | bf16 (the transformer's linear layers in bfloat16, the rest in float32: faster on CPUs with bfloat16 instructions; actions within bf16 rounding of fp32's)."),
     workers: int = typer.Option(0, min=0, help="Worker processes (0: all cores)."),
     record: int = typer.Option(0, min=0, help="Write the first K environments' rollouts as MCAP (Foxglove)."),
     video: int = typer.Option(0, min=0, help="Write MP4 videos of K environments per controller, spread over the suite's groups (each group's first, then each group's second, ...; cities: the first K cities) to OUT/<suite>/videos/."),
@@ -241,12 +246,15 @@ def eval_cmd(
     from madp.eval.suites import suite_names
     from madp.policies import SamplingSettings
     from madp.policies.device import resolve_device
+    from madp.sampling import merge_sampling
 
     suites = suite_names(suite)
     requested, named = parse_controllers(controllers) if controllers else (DEFAULT, {})
     if ddim_steps is not None:
         sampler, sampling_steps = "ddim", ddim_steps
-    sampling = SamplingSettings.of(sampler, sampling_steps, eta, fixed_noise, frame, select, candidates, precision)
+    sampling = SamplingSettings.of(**merge_sampling(sampling, sampler=sampler, sampling_steps=sampling_steps, eta=eta,
+                                                    fixed_noise=fixed_noise or None, frame=frame, select=select,
+                                                    candidates=candidates, precision=precision))
     cfg = EvalConfig(suite=suite, out=str(out), num_envs=num_envs, steps=steps, lpac=str(lpac) if lpac else None,
                      madp=str(madp) if madp else None, sampling=sampling, workers=workers, ray=ray,
                      record=record, video=video, cities=str(cities) if cities else None, device=resolve_device(device),
@@ -280,8 +288,9 @@ def eval_compare_cmd(
 def export_cmd(
     policy: Path = typer.Argument(..., help="MADP policy.safetensors (e.g. madp/checkpoints/madp-cpu.safetensors)."),
     out: Path = typer.Option(..., help="Directory for the graphs and runtime.json (created)."),
+    sampling: Optional[str] = typer.Option(None, "--sampling", help=sampling_help("The export fixes sampler (dpm++), steps and precision (fp32); madp swarm and madp-robot may change its rule, k and frame.")),
     sampling_steps: Optional[int] = typer.Option(None, min=1, help="DPM-Solver++(2M) steps S in runtime.json (default: the evaluation default, 3)."),
-    frame: str = typer.Option("d4", help="d4 | world (as madp eval --frame)."),
+    frame: Optional[str] = typer.Option(None, help="d4 (the default) | world (as madp eval --frame)."),
     select: Optional[str] = SELECT,
     candidates: Optional[int] = CANDIDATES,
     overwrite: bool = typer.Option(False, help="Replace an earlier export in --out (any other file there makes it refuse)."),
@@ -289,9 +298,11 @@ def export_cmd(
     """Write MADP's networks of one robot's step as ONNX graphs (perception, encoder, denoiser) and runtime.json, for the torch-free robot runtime (docs/guides/export.md)."""
     from madp.export.onnx import export_policy
     from madp.policies import SamplingSettings
+    from madp.sampling import merge_sampling
 
-    spec = export_policy(policy, out, SamplingSettings.of("dpm++", sampling_steps, 0.0, False, frame, select, candidates),
-                         overwrite=overwrite)
+    settings = {"sampler": "dpm++", **merge_sampling(sampling, sampling_steps=sampling_steps, frame=frame, select=select,
+                                                     candidates=candidates)}
+    spec = export_policy(policy, out, SamplingSettings.of(**settings), overwrite=overwrite)
     typer.echo(f"{policy} -> {out}: {', '.join(spec['graphs'].values())}, runtime.json ({spec['sampler']['name']} "
                f"S = {spec['sampler']['steps']}, {spec['selection']['rule']} among K = {spec['selection']['candidates']}, "
                f"frame {spec['selection']['frame']}; sha256 {spec['source']['sha256'][:12]})")

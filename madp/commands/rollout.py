@@ -32,7 +32,8 @@ def check_runtime(runtime: str, controller: str) -> None:
     """Refuse, before anything is read or run, a ``--runtime`` that is not one of :data:`RUNTIMES`,
     ``onnx`` for a controller other than decentralized MADP, or ``onnx`` without madp's ``onnx`` extra."""
     from madp.controllers import controller_info
-    from madp.eval.runner import ONNX_MODULES, RUNTIMES, check_extra
+    from madp.eval.runner import ONNX_MODULES, check_extra
+    from madp.sampling import RUNTIMES
 
     if runtime not in RUNTIMES:
         raise SettingError("runtime", f"expected one of {', '.join(RUNTIMES)}, got {runtime!r}")
@@ -78,14 +79,15 @@ def check_outputs(out: Path, record: Path | None) -> None:
 
 
 def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: int | None, steps: int, out: Path,
-                video: Path | None, device: str, select: str | None, candidates: int | None, network: str | None,
-                record: Path | None, record_format: str, runtime: str) -> None:
+                video: Path | None, device: str, sampling_spec: str | None, select: str | None, candidates: int | None,
+                network: str | None, record: Path | None, record_format: str, runtime: str) -> None:
     """``madp rollout`` with its options' values: write the result JSON (and the recording, the video)
     and print a line for each."""
     from madp.controllers import controller_info, make_controller, resolve_checkpoint
     from madp.recordings.recorders import recorder
     from madp.policies import SamplingSettings
     from madp.policies.device import resolve_device
+    from madp.sampling import merge_sampling, spec_text
     from madp.sim import CoverageEnv, Scenario, rollout as run
     from madp.video import Frames, check_video_path
 
@@ -94,7 +96,10 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
         raise SettingError("checkpoint", f"the {controller} controller takes no checkpoint")
     check_runtime(runtime, controller)
     device = resolve_device(device)  # checked, like the video path, before anything is read or run
-    sampling = SamplingSettings.of(select=select, candidates=candidates) if learned else None  # MADP's; checked
+    given = merge_sampling(sampling_spec, select=select, candidates=candidates)
+    if given and not controller_info(controller).samples:
+        raise SettingError("sampling" if sampling_spec else "select", f"the {controller} controller does not sample")
+    sampling = SamplingSettings.of(**given) if learned else None  # MADP's; checked
     frames = [Frames(check_video_path(video), steps)] if video is not None else []
     check_record(record_format)  # the format, its extra and the paths are checked before anything runs
     check_outputs(out, record)
@@ -112,6 +117,9 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
     rec = recorder(record_format, env, ctrl, controller, steps) if record is not None else None
     result = run(env, ctrl, steps, frames + ([rec] if rec else []))
     doc = result.to_json(controller)
+    if controller_info(controller).samples:  # how it sampled, and where its starting noise came from
+        doc["sampling"] = {"spec": spec_text(sampling.as_dict()), **sampling.as_dict(), "runtime": runtime,
+                           "noise": "robot" if runtime == "onnx" else "torch"}
     if env.network is not None:  # the network's settings and the bytes each robot put on the air per step
         doc["network"] = {"settings": net.as_dict(), "bytes_per_robot_step": env.network.bytes_per_robot_step(steps)}
     write_json_atomic(out, doc)

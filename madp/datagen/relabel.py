@@ -26,34 +26,37 @@ PARENT_KEYS = ("root", "num_samples", "created_by", "more")
 _verified: set = set()  # (path, sha256) of the policy files checked in this process
 
 
-def learner_settings(policy: str | Path | None, beta: float = 0.0, select: str = "none") -> dict:
+def learner_settings(policy: str | Path | None, beta: float = 0.0, sampling: str | None = None,
+                     select: str | None = None) -> dict:
     """The ``policy`` setting of a relabelling plan: the policy file's path, checksum and kind, the
-    probability ``beta`` that a step executes the expert's action, MADP's selection rule ``select``
-    with its default K and S (recorded only when it is not ``none``, one sample per robot) and the
-    policy's parent dataset;
-    ``{}`` (the expert drives) without a policy, where a ``beta`` or a ``select`` is refused."""
+    probability ``beta`` that a step executes the expert's action, MADP's sampling (``sampling``: the
+    spec of :func:`madp.sampling.parse_sampling`, or the single ``select``; by default one sample per
+    robot, ``none``): its rule with its K and S (recorded only when it is not ``none``) and its noise
+    source (``torch``, one generator per episode seeded by its scenario), and the policy's parent
+    dataset; ``{}`` (the expert drives) without a policy, where a ``beta`` or a sampling is refused."""
     from madp.policies.checkpoint import load_policy
-    from madp.selection import check_rule, default_candidates
+    from madp.sampling import merge_sampling
 
+    given = merge_sampling(sampling, select=select)
     if policy is None:
         if beta:
             raise SettingError("beta", "only meaningful with a policy")
-        if select != "none":
-            raise SettingError("select", "only meaningful with a policy")
+        if given:
+            raise SettingError("sampling" if sampling else "select", "only meaningful with a policy")
         return {}
-    check_rule(select, default_candidates(select))
+    from madp.policies.madp import SamplingSettings
+
+    chosen = SamplingSettings.of(**{"select": "none", **given})  # checked; the rule's K and S as they are today
     policy = Path(policy)
     _, meta = load_policy(policy)
-    if select != "none" and meta["kind"] != "madp":
+    if chosen.select != "none" and meta["kind"] != "madp":
         raise SettingError("select", f"only MADP chooses among samples; {policy} is {meta['kind']}")
-    chosen = {}
-    if select != "none":  # the rule's K and S as they are today: a later default does not change the data
-        from madp.policies.madp import SamplingSettings
-
-        sampling = SamplingSettings.of(select=select)
-        chosen = {"select": select, "candidates": sampling.candidates, "sampling_steps": sampling.sampling_steps}
+    recorded = {"select": chosen.select, "candidates": chosen.candidates, "sampling_steps": chosen.sampling_steps} \
+        if chosen.select != "none" else {}  # a later default does not change the data
+    recorded.update({k: getattr(chosen, k) for k in given})  # and whatever else the spec set
+    noise = {"noise": "torch"} if meta["kind"] == "madp" else {}
     return {"path": str(policy.resolve()), "sha256": sha256_file(policy), "kind": meta["kind"], "beta": beta,
-            **chosen,
+            **recorded, **noise,
             "parent": {k: v for k, v in meta.get("dataset", {}).items() if k in PARENT_KEYS}}
 
 
@@ -128,10 +131,10 @@ def _learner(policy: dict, seed: int):
             raise InputError(f"{policy['path']}: changed since this dataset's plan was made (sha256 differs)")
         _verified.add(key)
     # plans that name a rule without its K and S were made when the default was K = 4 at S = 3
-    select = policy.get("select", "none")
-    sampling = SamplingSettings.of(select=select, **({"candidates": policy.get("candidates", 4),
-                                                     "sampling_steps": policy.get("sampling_steps", 3)}
-                                                    if select != "none" else {}))
+    settings = {k: policy[k] for k in SamplingSettings.__dataclass_fields__ if k in policy}
+    if settings.get("select", "none") != "none":
+        settings = {"candidates": 4, "sampling_steps": 3, **settings}
+    sampling = SamplingSettings.of(**{"select": "none", **settings})
     return make_controller(policy["kind"], policy["path"], seed=seed, sampling=sampling)
 
 

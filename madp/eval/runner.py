@@ -41,16 +41,15 @@ from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, 
     is_named, make_controller
 from madp.errors import InputError, SettingError
 from madp.policies import SamplingSettings
+from madp.sampling import RUNTIMES
 from madp.sim import CoverageEnv
 from madp.sim.rollout import Actions, Costs, Hook, Links, Positions, Samples, Timing, act_alone, run
 
 from .suites import MAX_NUM_ENVS, EnvSpec, only_groups, suite_envs
 
 #: Settings added after suites were first written: an older config.json without them had these values.
-SETTING_DEFAULTS = {"fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
+SETTING_DEFAULTS = {"noise": "torch", "fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
                     "device": "cpu", "runtime": "torch", "precision": "fp32"}
-#: ``--runtime``: MADP (decentralized) as the PyTorch policy, or robot by robot through ``madp export``'s files.
-RUNTIMES = ("torch", "onnx")
 #: What ``--runtime onnx`` imports (the export and the robot runtime): madp's ``onnx`` extra.
 ONNX_MODULES = ("onnx", "onnxruntime", "onnxscript")
 
@@ -378,7 +377,7 @@ def _run_suite_locked(cfg: EvalConfig, suite: str, envs: list[EnvSpec], suite_di
     settings = {"suite": suite, "num_envs": cfg.num_envs, "steps": cfg.steps, **cfg.sampling.as_dict(),
                 "record": cfg.record, "video": cfg.video, "env_keys": [e.key for e in envs],
                 "env_seeds": [e.seed for e in envs], "device": cfg.device,
-                "runtime": cfg.runtime}
+                "runtime": cfg.runtime, "noise": "torch"}  # every runtime draws the torch generators' noise here
     # The checkpoints this run uses: per kind (the plain controllers') and per named controller.
     plain_kinds = {controller_info(c).kind for c in cfg.controllers if not is_named(c)}
     used = [(k, getattr(cfg, k)) for k in CHECKPOINT_KINDS if getattr(cfg, k) and k in plain_kinds]
@@ -468,7 +467,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
     results = {k: [] for k in ("suite", "group", "env", "scenario_seed", "controller", "final_cost", "steps",
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
                                "sampler", "sampling_steps", "fixed_noise", "frame", "select", "candidates",
-                               "precision", "bytes_per_robot_step")}
+                               "precision", "noise", "bytes_per_robot_step")}
     sampling = {c: controller_info(c).settings(cfg.sampling) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
@@ -487,7 +486,8 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                        sampler=sampling[c].get("sampler", ""), sampling_steps=sampling[c].get("sampling_steps", 0),
                        fixed_noise=sampling[c].get("fixed_noise", False), frame=sampling[c].get("frame", ""),
                        select=sampling[c].get("select", ""), candidates=sampling[c].get("candidates", 0),
-                       precision=sampling[c].get("precision", ""), bytes_per_robot_step=_job_bytes(d))
+                       precision=sampling[c].get("precision", ""), noise="torch" if sampling[c] else "",
+                       bytes_per_robot_step=_job_bytes(d))
             for k, v in row.items():
                 results[k].append(v)
     types = {"env": pa.int32(), "step": pa.int32(), "steps": pa.int32(), "num_robots": pa.int32(),

@@ -13,7 +13,8 @@ from madp.controllers import display_name
 from .paper import PAPER_CONTROLLERS, PAPER_RESULTS, paper_results
 from .stats import CONFIDENCE, finite, n_range
 
-__all__ = ["ALL_ROW", "SAMPLER_NAMES", "best_markdown", "markdown_table", "sampling_markdown", "symmetry_markdown"]
+__all__ = ["ALL_ROW", "SAMPLER_NAMES", "best_markdown", "markdown_table", "sampling_markdown", "select_prose",
+           "symmetry_markdown"]
 
 #: Row label of the whole-suite row of the Markdown tables (and key of ``summary["overall"]``).
 ALL_ROW = "all"

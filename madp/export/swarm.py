@@ -34,15 +34,13 @@ from madp.errors import SettingError
 from madp.policies.madp import SamplingSettings, noise_generator
 from madp.robot.choice import local_views
 from madp.robot import RobotRuntime
+from madp.sampling import NOISES  # where the starting noise comes from (module docstring)
 from madp.sim.network import Message
 from madp.swarm.world import shared_seed
 
 from .onnx import export_policy
 
-__all__ = ["NOISES", "OnnxMADPPolicy", "exported", "token_inboxes"]
-
-#: Where :class:`OnnxMADPPolicy`'s starting noise comes from (module docstring).
-NOISES = ("torch", "robot")
+__all__ = ["OnnxMADPPolicy", "exported", "token_inboxes"]
 
 _exports: dict[tuple, Path] = {}
 

@@ -26,6 +26,7 @@ import traceback
 from typing import Callable, Sequence
 
 from madp.errors import MadpError
+from madp.sampling import sampling_help
 
 __all__ = ["main", "step_action"]
 
@@ -49,11 +50,13 @@ def _parser() -> _Parser:
                                       "made from the seed and print its action (m/s) as one JSON line.")
     step.add_argument("--export", required=True, metavar="DIR", help="the directory madp export wrote")
     step.add_argument("--seed", type=int, default=0, metavar="S", help="the episode's seed and the input's (default 0)")
+    step.add_argument("--sampling", default=None, metavar="SPEC", help=sampling_help("The export fixes sampler, steps "
+                      "and precision; its rule, k and frame may change here."))
     sub.add_parser("run", add_help=False, help="one robot process of a swarm (madp-robot run --help)")
     return parser
 
 
-def step_action(export_dir: str, seed: int = 0) -> dict:
+def step_action(export_dir: str, seed: int = 0, sampling: str | None = None) -> dict:
     """Robot 0's control step 0 of the episode of ``seed`` with the policy exported to ``export_dir`` on
     a synthetic input drawn from ``seed``: its position uniform in the middle half of the world, its
     sensor's reading uniform importances in [0, 1) around it, no message received. Returns
@@ -67,7 +70,7 @@ def step_action(export_dir: str, seed: int = 0) -> dict:
 
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 1 << 63:
         raise SettingError("seed", f"expected a whole number from 0 to 2**63 - 1, got {seed!r}")
-    runtime = RobotRuntime(export_dir)
+    runtime = RobotRuntime(export_dir, sampling=sampling)
     params = runtime.params
     rng = np.random.default_rng(seed)
     position_m = rng.uniform(0.25, 0.75, 2) * runtime.world_size_m
@@ -77,7 +80,8 @@ def step_action(export_dir: str, seed: int = 0) -> dict:
     agent.observe(0, position_m, reading)
     agent.token([])
     result = agent.act([])
-    return {"action_mps": [float(v) for v in result.action_mps], "rule": runtime.rule, "seed": seed}
+    return {"action_mps": [float(v) for v in result.action_mps], "rule": runtime.rule, "seed": seed,
+            "sampling": runtime.sampling_spec, "noise": "robot"}
 
 
 def _run(argv: list[str]) -> int:
@@ -128,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if ns.command is None:
             parser.print_help()
             return 2
-        print(json.dumps(step_action(ns.export, ns.seed)), flush=True)
+        print(json.dumps(step_action(ns.export, ns.seed, ns.sampling)), flush=True)
         return 0
 
     return _guarded(action)

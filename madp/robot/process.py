@@ -65,6 +65,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--secret", required=True, metavar="FILE",
                    help="this robot's key: - for one line of hex on standard input, or a file only its owner can read")
     p.add_argument("--threads", type=int, default=1, metavar="T", help="onnxruntime threads (default 1)")
+    p.add_argument("--sampling", default=None, metavar="SPEC", help="the export's rule, k or frame changed for this "
+                   "robot, as NAME=VALUE items (madp.sampling: e.g. rule=value_joint,k=8)")
     p.add_argument("--parent", type=int, default=None, metavar="PID",
                    help="exit when this process does (default: the parent process)")
     p.add_argument("--silence-s", type=float, default=120.0, metavar="S",
@@ -241,7 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .agent import RobotAgent
     from .runtime import RobotRuntime
 
-    runtime = RobotRuntime(args.export, threads=args.threads)
+    runtime = RobotRuntime(args.export, threads=args.threads, sampling=args.sampling)
     link = RobotLink(endpoint, run_key, args.id, key)
     try:
         start = _handshake(link, args.id, args.silence_s)

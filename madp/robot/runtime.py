@@ -36,7 +36,8 @@ import numpy as np
 from madp.errors import InputError, SettingError
 from madp.io.checksum import sha256_file
 from madp.io.jsonfile import read_json
-from madp.selection import RULES, Rule, choose, rule_names, weigh
+from madp.sampling import parse_sampling, spec_text
+from madp.selection import RULES, Rule, check_rule, choose, rule_names, weigh
 from madp.sim.network import Message
 from madp.sim.params import SimParams
 from madp.sim.rules import clip_speed, closer_than_squared
@@ -97,7 +98,7 @@ class RobotRuntime:
     step's only). Construction reads and checks the files (a one-line error naming the file)."""
 
     def __init__(self, directory: str | Path, threads: int = 1, params: SimParams | None = None,
-                 max_age: int | None = 0):
+                 max_age: int | None = 0, sampling: str | None = None):
         import onnxruntime as ort
 
         self.directory = Path(directory)
@@ -122,6 +123,7 @@ class RobotRuntime:
             self.params = params or SimParams(**spec["motion"])
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{spec_file}: not a complete {FORMAT} file ({type(e).__name__}: {e})") from None
+        self._apply_sampling(spec_file, sampling)
         runs = rule_names(bound=False)
         if self.rule not in runs:
             raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(runs)})")
@@ -148,6 +150,25 @@ class RobotRuntime:
                 raise InputError(f"{spec_file}: says {spec_size} for the {what} size, its graph has {graph} "
                                  "(graphs and runtime.json of different exports)")
 
+    def _apply_sampling(self, spec_file: Path, text: str | None) -> None:
+        """``--sampling`` (:func:`madp.sampling.parse_sampling`) over the export's: its rule, K and frame
+        may change here; the sampler, S, η, fixed noise and precision are the export's (a one-line error
+        when the spec says otherwise: export again)."""
+        given = parse_sampling(text)
+        fixed = {"sampler": "dpm++", "sampling_steps": len(self.timesteps), "eta": 0.0, "fixed_noise": False,
+                 "precision": "fp32"}
+        for setting, value in given.items():
+            if setting in fixed and value != fixed[setting]:
+                raise SettingError("sampling", f"{spec_text({setting: value})}: {spec_file} fixes it at "
+                                               f"{spec_text({setting: fixed[setting]})}; export again with it")
+        self.rule = given.get("select", self.rule)
+        self.candidates = given.get("candidates", self.candidates)
+        self.frame = given.get("frame", self.frame)
+        if self.frame not in ("world", "d4"):
+            raise SettingError("sampling", f"frame: expected world or d4, got {self.frame!r}")
+        if given:
+            check_rule(self.rule, self.candidates)
+
     def _check_graphs(self, spec_file: Path, graphs: dict[str, str]) -> None:
         """Each graph's sha256 against the one ``runtime.json`` records (a one-line error naming the file)."""
         digests = self.spec.get("graph_sha256")
@@ -161,6 +182,12 @@ class RobotRuntime:
                                  "(an interrupted or mixed export); export again with madp export --overwrite")
 
     # ------------------------------------------------------------------------------------ helpers
+    @property
+    def sampling_spec(self) -> str:
+        """How this runtime samples, as a ``--sampling`` spec (:func:`madp.sampling.spec_text`)."""
+        return spec_text({"sampler": "dpm++", "sampling_steps": len(self.timesteps), "candidates": self.candidates,
+                          "select": self.rule, "frame": self.frame, "precision": "fp32"})
+
     @property
     def reads_map(self) -> bool:
         """Whether its rule reads the robot's map (the step needs the robot's view)."""

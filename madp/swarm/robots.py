@@ -92,7 +92,7 @@ class RobotProcesses:
     lives as long as the world (the kernel's parent-death signal follows the thread that started a child)."""
 
     def __init__(self, num_robots: int, export_dir: str | Path, endpoint: str, run_key: str, keys: list[bytes],
-                 threads: int = 1):
+                 threads: int = 1, sampling: str | None = None):
         self.logs = Path(tempfile.mkdtemp(prefix="madp-swarm-"))
         env = {**os.environ, **_ONE_THREAD}
         self.procs: list[subprocess.Popen] = []
@@ -101,6 +101,7 @@ class RobotProcesses:
                 cmd = [sys.executable, "-m", "madp.robot", "run", "--export", str(export_dir), "--id", str(i),
                        "--endpoint", endpoint, "--key", run_key, "--secret", "-", "--threads", str(threads),
                        "--parent", str(os.getpid())]
+                cmd += ["--sampling", sampling] if sampling else []
                 with open(self.logs / f"robot_{i}.log", "wb") as log:
                     proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT, env=env)
                 self.procs.append(proc)

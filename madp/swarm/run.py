@@ -115,15 +115,16 @@ class _Progress:
 
 def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | Path,
               network: NetworkSettings | None = None, rate_hz: float | None = None, overwrite: bool = False,
-              progress: bool = True, secret: bytes | None = None) -> dict:
+              progress: bool = True, secret: bytes | None = None, sampling: str | None = None) -> dict:
     """Run the scenario's swarm, one robot process per robot with the policy exported to ``export``, for
     ``steps`` control steps over ``network`` (ideal when None), in lockstep or at ``rate_hz``; write
     ``out/summary.json`` and ``out/swarm.mcap`` and return the summary: ``final_cost`` (J(T)/J(0)),
     ``cost`` (J(t)/J(0), t = 0..T), per robot its ``pid``, step latency ``latency_ms`` p50/p99 (from its
     STEP packet sent to its command received), ``deadline_misses``, ``failed_at_step`` (or null) and its
     messages sent, delivered and their bytes per channel; the records dropped (``dropped``: forged,
-    malformed, foreign); the run's settings and timings; ``outcome`` (``completed``, or why it ended
-    early). ``secret``: the run's (:mod:`madp.robot.seal`; default a fresh one)."""
+    malformed, foreign); the run's settings (its sampling as a spec, ``sampling``: the export's rule, K or
+    frame changed for every robot, :func:`madp.sampling.parse_sampling`) and timings; ``outcome``
+    (``completed``, or why it ended early). ``secret``: the run's (:mod:`madp.robot.seal`; default a fresh one)."""
     from madp.robot.ros2 import RosbagWriter
     from madp.robot.runtime import RobotRuntime
 
@@ -137,7 +138,7 @@ def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | P
     check_run(steps, rate_hz)
     sc, out, net = Scenario.load(scenario), Path(out), network or NetworkSettings()
     check_capacity(len(sc.robots_m))
-    runtime = RobotRuntime(export)  # reads and checks runtime.json and the graphs: a one-line error naming the file
+    runtime = RobotRuntime(export, sampling=sampling)  # checks runtime.json, the graphs, the spec: one line naming it
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: not a directory; choose another --out")
     p, seed = sc.params, sc.seed if sc.seed is not None else 0
@@ -152,7 +153,7 @@ def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | P
                     "controller": "madp", "runtime": "swarm", "network": net.as_dict(), "rate_hz": rate_hz}
             log = RosbagWriter(out / "swarm.mcap", p.dt_s, meta)
             world = World(sc, bus, runtime.token_dim, net, rate_hz, log, runtime.candidates if runtime.joint else None)
-            robots = RobotProcesses(world.n, export, bus.endpoint, bus.run_key, bus.keys)
+            robots = RobotProcesses(world.n, export, bus.endpoint, bus.run_key, bus.keys, sampling=sampling)
             startup_s = world.connect(robots)
             bar = _Progress(steps, progress, f"{world.n} robot processes connected in {startup_s:.1f} s")
             done, outcome = 0, "completed"
@@ -187,7 +188,8 @@ def run_swarm(scenario: str | Path, export: str | Path, steps: int, out: str | P
             "network": net.as_dict(), "export": str(export),
             "policy": {"rule": runtime.rule, "candidates": runtime.candidates, "frame": runtime.frame,
                        "sampler": spec["sampler"]["name"], "sampling_steps": spec["sampler"]["steps"],
-                       "sha256": spec.get("source", {}).get("sha256")},
+                       "sha256": spec.get("source", {}).get("sha256"), "sampling": runtime.sampling_spec,
+                       "noise": "robot"},
             "final_cost": world.cost[-1] if done == steps else None, "cost": world.cost,
             "startup_s": startup_s, "wall_s": wall_s, "steps_per_s": done / wall_s,
             **world.summary(codes),

@@ -18,7 +18,6 @@ import pytest
 
 from madp.data_schema import ActionStatsAccumulator, DataError, Manifest, ShardInfo, SplitInfo, iter_shard, write_shard
 from madp.data_schema.manifest import _req
-from madp.io.checksum import sha256_file
 
 from .conftest import random_episodes
 
@@ -154,18 +153,6 @@ def _manifest_dict() -> dict:
         "schema_version": 1,
         "splits": {"train": {"num_episodes": 1, "num_samples": 3, "shards": [_shard()]}},
     }
-
-
-def test_sha256_file_reads_in_chunks_and_names_unreadable_files(tmp_path):
-    """Guards: the digest of a file larger than one chunk, and the path and OS reason in the error
-    (mutants: ``DataError.at(None, …)``, ``e.strerror and e``, dropped message)."""
-    f = tmp_path / "blob.bin"
-    data = bytes(range(256)) * 5
-    f.write_bytes(data)
-    import hashlib
-
-    assert sha256_file(f, chunk_bytes=7) == hashlib.sha256(data).hexdigest()
-    assert _message(sha256_file, tmp_path) == f"{tmp_path}: cannot read file (Is a directory)"
 
 
 def test_req_messages():

@@ -15,9 +15,9 @@ from madp.data_schema import (
     inspect_shard,
     iter_shard,
     read_shard,
-    sha256_file,
     write_shard,
 )
+from madp.io.checksum import sha256_file
 
 from .conftest import assert_bit_equal, batch_of, random_episodes
 

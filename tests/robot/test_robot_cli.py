@@ -42,6 +42,17 @@ def test_step_prints_the_action_as_one_json_line(tiny_export, capsys):
     assert capsys.readouterr().out == out  # the input is a function of the seed alone
 
 
+def test_step_takes_the_sampling_spec_over_the_exports(tiny_export, capsys):
+    """Its rule, K and frame may change on the robot; the sampler and S are the export's: one line."""
+    assert main(["step", "--export", str(tiny_export), "--seed", "5", "--sampling", "rule=none,k=1,frame=world"]) == 0
+    line = json.loads(capsys.readouterr().out)
+    assert line["rule"] == "none" and line["noise"] == "robot" and "k=1" in line["sampling"] and "frame=world" in line["sampling"]
+    for spec, needle in (("steps=7", "steps=7: "), ("sampler=ddim", "sampler=ddim: "), ("rule=oracle", "is not one a robot runs"),
+                         ("rule=none,k=4", "candidates"), ("frame=up", "frame: expected world or d4")):
+        assert main(["step", "--export", str(tiny_export), "--sampling", spec]) == 2
+        assert needle in _one_error_line(capsys), spec
+
+
 BAD_SPECS = {"malformed": "{oops", "format": json.dumps({"format": "other/1"}),
              "incomplete": json.dumps({"format": FORMAT, "graphs": {"perception": "perception.onnx"}})}
 
