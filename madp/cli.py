@@ -22,6 +22,7 @@ from madp.commands.main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
 from madp.sampling import sampling_help
 from madp.selection import select_help
+from madp.versions import print_version
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
                   help="Multi-agent diffusion policies for coverage control: datasets, training, evaluation.")
@@ -31,16 +32,8 @@ app.add_typer(dataset_app, name="dataset")
 app.add_typer(scenario_app, name="scenario")
 
 
-def _version(value: bool) -> None:
-    if value:
-        from madp.versions import version_line
-
-        typer.echo(version_line())
-        raise typer.Exit()
-
-
 @app.callback()
-def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+def _main(version: bool = typer.Option(False, "--version", callback=print_version, is_eager=True,
                                        help="Print madp's and torch's versions, torch's build (CPU only or CUDA) and the GPU it sees, then exit.")) -> None:
     """The options before a command (``madp --version``)."""
 
@@ -269,21 +262,6 @@ def eval_cmd(
         typer.echo((Path(cfg.out) / s / "summary.md").read_text())
 
 
-@eval_app.command("compare")
-def eval_compare_cmd(
-    runs: List[str] = typer.Argument(..., metavar="RUN", help="Two or more finished suite directories of madp eval (OUT/<suite>/), each PATH or NAME=PATH."),
-    baseline: Optional[str] = typer.Option(None, help="The run the others are compared with: a name or a path (default: the first)."),
-    out: Optional[Path] = typer.Option(None, help="Where compare.md, compare.json and compare.png go (default runs/compare/<suite>)."),
-    shared: bool = typer.Option(False, help="Pair on the environments every run holds (a --paired-se run against a full one)."),
-) -> None:
-    """Compare evaluations of one suite on the same environments: each run's mean, the paired difference to the baseline (SE, 95% interval) and wins k/n per controller and group."""
-    from madp.eval.compare import compare_runs, load_runs, markdown, write_compare
-    cmp = compare_runs(load_runs(runs), baseline, shared=shared)
-    files = write_compare(cmp, out or Path("runs/compare") / cmp["suite"])
-    typer.echo(markdown(cmp))
-    typer.echo(f"-> {', '.join(str(p) for p in files.values())}")
-
-
 @app.command("export")
 def export_cmd(
     policy: Path = typer.Argument(..., help="MADP policy.safetensors (e.g. madp/checkpoints/madp-cpu.safetensors)."),
@@ -334,12 +312,14 @@ def _add_commands() -> None:
     from madp.commands.report import report_cmd  # madp eval report: the documentation's results tables
     from madp.commands.swarm import swarm_cmd  # madp swarm: one process per robot over Zenoh
     from madp.commands.value import value_app  # madp value: the value rule's learned map prior
+    from madp.commands.compare import compare_cmd  # madp eval compare: finished evaluations, paired
     from madp.commands.critic import critic_app  # madp critic: the learned critic of MADP's joint copies
     app.add_typer(bench_app, name="bench")
     app.add_typer(value_app, name="value")
     app.add_typer(critic_app, name="critic")
     dataset_app.command("import")(dataset_import_cmd)
     eval_app.command("report")(report_cmd)
+    eval_app.command("compare")(compare_cmd)
     app.command("swarm")(swarm_cmd)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import platform
 
-__all__ = ["version_line"]
+__all__ = ["print_version", "version_line"]
 
 
 def torch_build(version: str, cuda: str | None, gpus: list[str]) -> str:
@@ -29,3 +29,12 @@ def version_line() -> str:
     cuda = torch.version.cuda
     gpus = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())] if cuda else []
     return f"madp {__version__} ({torch_build(torch.__version__, cuda, gpus)}; Python {platform.python_version()})"
+
+
+def print_version(value: bool) -> None:
+    """``madp --version``'s callback: print :func:`version_line` and end the command."""
+    if value:
+        import typer
+
+        typer.echo(version_line())
+        raise typer.Exit()
