@@ -247,12 +247,14 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
         return build(model, device)
     from madp.selection import RULES
 
-    if sampling is not None and RULES[sampling.select].prior:
-        from madp.policies.checkpoint import load_map_prior
+    needs = RULES[sampling.select].needs if sampling is not None else ""
+    if needs:
+        from madp.policies.checkpoint import load_learned
+        from madp.selection import NEEDS
 
-        prior = load_map_prior(path, device)
-        if prior is None:
-            raise SettingError("select", f"{sampling.select} scores candidates on a learned map prior, and {path} carries none "
-                                         "(madp value train adds one)")
-        return build(model, info.mode, sampling, seed=seed, device=device, map_prior=prior)
+        network = load_learned(path, needs, device)
+        if network is None:
+            raise SettingError("select", f"{sampling.select} reads a learned {needs}, and {path} carries none "
+                                         f"({NEEDS[needs].made_by} adds one)")
+        return build(model, info.mode, sampling, seed=seed, device=device, network=network)
     return build(model, info.mode, sampling, seed=seed, device=device)

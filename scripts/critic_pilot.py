@@ -1,11 +1,11 @@
 """A closed-loop pilot of the critic on a few dataset scenarios (never an evaluation suite's): not a suite.
 
 The deployed policy (MADP at the evaluation default) draws K joint copies per step with each rollout's own
-noise, as ``act_batch`` does, and either ``explore`` keeps one action per robot (the default) or the critic
-does, per robot, per neighbourhood or team-wide (:func:`madp.models.critic.critic_env_select`). Each rule
-runs the same scenarios from the same noise seed; printed and written: J(T)/J(0) per scenario and rule.
+noise, as ``act_batch`` does, and a selection rule keeps one action per robot: ``explore`` (the default),
+``critic`` or ``critic_hood`` (:func:`madp.policies.select.select_actions`). Each rule runs the same
+scenarios from the same noise seed; printed and written: J(T)/J(0) per scenario and rule.
 
-    python scripts/critic_pilot.py --critic docs/results/critic-2026-12-07/critic.safetensors --first 40 \
+    python scripts/critic_pilot.py --critic docs/results/critic-2026-12-07/policy.safetensors --first 40 \
         --envs 4 --out docs/results/critic-2026-12-07/pilot.json
 """
 
@@ -20,13 +20,12 @@ import numpy as np
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--critic", required=True, help="Critic file (madp critic train).")
+    ap.add_argument("--critic", required=True, help="Policy file carrying a critic (madp critic train).")
     ap.add_argument("--first", type=int, default=40, help="First dataset scenario index (seed 0).")
     ap.add_argument("--envs", type=int, default=4, help="Scenarios, run as one batch.")
     ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--candidates", type=int, default=4, help="K joint copies per step.")
-    ap.add_argument("--rules", default="explore,neighbourhood,team,robot",
-                    help="explore and/or critic scopes, comma-separated.")
+    ap.add_argument("--rules", default="explore,critic_hood,critic", help="Selection rules, comma-separated.")
     ap.add_argument("--out", required=True, help="JSON to write.")
     args = ap.parse_args()
 
@@ -35,7 +34,7 @@ def main() -> None:
     torch.set_num_threads(1)
     from madp.controllers import make_controller
     from madp.io.atomic import write_json_atomic
-    from madp.models.critic import critic_env_select, load_critic
+    from madp.models.critic import load_critic
     from madp.policies import SamplingSettings
     from madp.policies.madp import noise_generator
     from madp.policies.select import select_actions
@@ -57,9 +56,7 @@ def main() -> None:
 
         def act(es, rule=rule, gens=gens):
             copies = draw_copies(policy, es, args.candidates, gens)  # [B, K, N, 2]
-            if rule == "explore":
-                return np.stack([select_actions("explore", e, c) for e, c in zip(es, copies)])
-            return np.stack([critic_env_select(e, c, net, rule) for e, c in zip(es, copies)])
+            return np.stack([select_actions(rule, e, c, net) for e, c in zip(es, copies)])
 
         run(envs, act, steps=args.steps)
         result["final"][rule] = [float(e.normalized_cost()) for e in envs]

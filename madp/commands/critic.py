@@ -38,7 +38,9 @@ def critic_collect_cmd(
 @critic_app.command("train")
 def critic_train_cmd(
     data: List[Path] = typer.Option(..., help="Labels files from madp critic collect (repeat for several)."),
-    out: Path = typer.Option(..., help="The critic file to write (.safetensors)."),
+    out: Path = typer.Option(..., help="The policy file to write (.safetensors): --policy carrying the critic, "
+                             "for madp eval --sampling rule=critic."),
+    policy: Optional[Path] = typer.Option(None, help="MADP policy file to carry the critic (default: the shipped one)."),
     held_out: float = typer.Option(0.25, help="The share of the environments (the last ones) left out of training "
                                    "(0: all of them train; rank on other files)."),
     epochs: int = typer.Option(12, min=1, help="Passes over the training states."),
@@ -56,14 +58,15 @@ def critic_train_cmd(
     arrays, meta = load_many(data)
     train_envs, _ = split_envs(arrays["env"], held_out)
     train(arrays, train_envs, out, epochs=epochs, rank_weight=rank_weight, seed=seed,
-          record={"data": [str(p) for p in data], "collect": meta, "held_out": held_out}, log=typer.echo)
-    typer.echo(f"critic -> {out}")
+          record={"data": [str(p) for p in data], "collect": meta, "held_out": held_out}, log=typer.echo,
+          policy=policy)
+    typer.echo(f"policy with its critic -> {out}")
 
 
 @critic_app.command("rank")
 def critic_rank_cmd(
     data: List[Path] = typer.Option(..., help="Labels files from madp critic collect (repeat for several)."),
-    critic: Path = typer.Option(..., help="Critic file from madp critic train: its training environments are left out."),
+    critic: Path = typer.Option(..., help="Policy file from madp critic train: its critic's training environments are left out."),
     out: Path = typer.Option(..., help="The JSON file to write the ranking numbers to."),
 ) -> None:
     """Rank the copies of the states the critic was not trained on: the critic, explore, value and the true cells."""
@@ -82,12 +85,12 @@ def critic_rank_cmd(
 
 @critic_app.command("export")
 def critic_export_cmd(
-    critic: Path = typer.Option(..., help="Critic file from madp critic train."),
+    critic: Path = typer.Option(..., help="Policy file from madp critic train."),
     out: Path = typer.Option(..., help="The ONNX graph to write (.onnx)."),
 ) -> None:
     """Export the critic as an ONNX graph the robot runs without torch (madp.robot.critic.onnx_predictor)."""
     from madp.errors import SettingError
-    from madp.export.critic_onnx import export_critic
+    from madp.export.onnx import export_critic
     from madp.models.critic import load_critic
 
     if out.suffix != ".onnx":

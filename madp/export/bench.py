@@ -77,7 +77,7 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
         one_pass()
         robot = [one_pass() for _ in range(repeats)]
     policy = MADPPolicy(model, "decentralized", sampling,
-                        map_prior=load_map_prior(path) if RULES[sampling.select].prior else None)
+                        network=load_map_prior(path) if RULES[sampling.select].prior else None)
     gen = noise_generator(seed)
     with torch_threads(1):
         policy.act_batch([env], [gen])

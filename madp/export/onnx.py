@@ -8,9 +8,12 @@ What a directory made by :func:`export_policy` holds (the robot runtime :mod:`ma
                        -> ``memory [B, T, d_model]``
 ``denoiser.onnx``      Psi_D and the head: ``noisy_actions [B, T, 2]``, ``step [B]`` int64, ``memory``,
                        ``positions_m``, ``mask`` -> ``eps [B, T, 2]`` (the predicted noise)
-``map_prior.onnx``     with ``--select value`` or ``value_explore`` only: the policy file's learned map prior
+``map_prior.onnx``     with a ``value`` rule only: the policy file's learned map prior
                        (:class:`madp.models.map_prior.MapPrior`): ``windows [R, 3, H, W]`` float32 ->
                        ``density [R, H, W]`` (:mod:`madp.robot.prior`)
+``critic.onnx``        with a ``critic`` rule only: the policy file's critic (:class:`madp.models.critic.Critic`):
+                       ``windows [R, 5, H, H]``, ``neighbours [R, M, 3]`` float32 -> ``mass [R]``,
+                       ``offset [R, 2]`` (:mod:`madp.robot.critic`)
 ``runtime.json``       what the loop around them needs (:func:`runtime_spec`) and each graph's sha256
 =====================  ====================================================================================
 
@@ -33,13 +36,13 @@ from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import foreign_files
-from madp.policies.checkpoint import load_map_prior, load_policy
+from madp.policies.checkpoint import load_learned, load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
 from madp.policies.select import GRID_M
-from madp.selection import RULES
+from madp.selection import NEEDS, RULES
 from madp.sim import SimParams
 
-__all__ = ["FORMAT", "GRAPHS", "OPSET", "PRIOR_GRAPH", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
+__all__ = ["FORMAT", "GRAPHS", "LEARNED_GRAPHS", "OPSET", "PRIOR_GRAPH", "export_critic", "export_policy", "export_graphs", "runtime_spec", "write_runtime"]
 
 #: ``runtime.json``'s ``format``: the layout the runtime reads.
 FORMAT = "madp-onnx-runtime/1"
@@ -47,8 +50,11 @@ FORMAT = "madp-onnx-runtime/1"
 OPSET = 17
 #: The graphs, by role, and their file names.
 GRAPHS = {"perception": "perception.onnx", "encoder": "encoder.onnx", "denoiser": "denoiser.onnx"}
+#: The graph of the learned network a rule reads (:attr:`madp.selection.Rule.needs`), by that need:
+#: ``{role: file name}``.
+LEARNED_GRAPHS = {name: {n.key: f"{n.key}.onnx"} for name, n in NEEDS.items()}
 #: The map prior's graph (the ``value`` rules only), by role, and its file name.
-PRIOR_GRAPH = {"map_prior": "map_prior.onnx"}
+PRIOR_GRAPH = LEARNED_GRAPHS["map prior"]
 RUNTIME_JSON = "runtime.json"
 
 
@@ -115,18 +121,40 @@ def _write_graph(module: nn.Module, example: tuple[Tensor, ...], inputs: tuple[s
     return path
 
 
-def export_graphs(model, out_dir: Path, map_prior=None) -> dict[str, Path]:
+def export_critic(net, out: Path) -> Path:
+    """Write the critic ``net`` (a :class:`madp.models.critic.Critic`, eval mode) as one ONNX graph to
+    ``out`` atomically: ``windows [R, 5, H, H]`` and ``neighbours [R, M, 3]`` float32
+    (:func:`madp.robot.critic.critic_inputs`) -> ``mass [R]`` and ``offset [R, 2]`` (in units of
+    :data:`madp.robot.critic.OFFSET_SCALE_M`), the robots axis dynamic, run torch-free by
+    :func:`madp.robot.critic.onnx_predictor`; returns ``out``."""
+    from madp.robot.critic import MAX_NEIGHBOURS
+
+    cells = net.config.cells
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    near = torch.rand(2, MAX_NEIGHBOURS, 3).round()
+    return _write_graph(net.eval(), (torch.rand(2, 5, cells, cells), near), ("windows", "neighbours"),
+                        ("mass", "offset"), {"windows": {0: "robots"}, "neighbours": {0: "robots"}, "mass": {0: "robots"},
+                                             "offset": {0: "robots"}}, out)
+
+
+def export_graphs(model, out_dir: Path, learned=None) -> dict[str, Path]:
     """Write the three ONNX graphs of ``model`` (a :class:`madp.models.MADP` in eval mode) into
-    ``out_dir``, each atomically, and ``map_prior``'s (:class:`madp.models.map_prior.MapPrior`) when
-    given. Returns ``{role: path}``."""
+    ``out_dir``, each atomically, and the learned network ``learned`` a rule reads when given (a
+    :class:`madp.models.map_prior.MapPrior` or a :class:`madp.models.critic.Critic`, :data:`LEARNED_GRAPHS`).
+    Returns ``{role: path}``."""
     model = model.eval()
     example = _example(model)
     paths = {role: _write_graph(module, tuple(example[n] for n in inputs), inputs, outputs,
                                 {n: _axes(n) for n in (*inputs, *outputs)}, out_dir / GRAPHS[role])
              for role, (module, inputs, outputs) in graph_modules(model).items()}
-    if map_prior is not None:
+    from madp.models.critic import Critic
+
+    if isinstance(learned, Critic):
+        paths["critic"] = export_critic(learned, out_dir / LEARNED_GRAPHS["critic"]["critic"])
+    elif learned is not None:
         side = model.config.obs_size // 2  # any window side: H and W are dynamic
-        paths["map_prior"] = _write_graph(map_prior.eval(), (torch.rand(2, 3, side, side),), ("windows",), ("density",),
+        paths["map_prior"] = _write_graph(learned.eval(), (torch.rand(2, 3, side, side),), ("windows",), ("density",),
                                           {"windows": {0: "robots", 2: "rows", 3: "cols"},
                                            "density": {0: "robots", 1: "rows", 2: "cols"}},
                                           out_dir / PRIOR_GRAPH["map_prior"])
@@ -134,7 +162,7 @@ def export_graphs(model, out_dir: Path, map_prior=None) -> dict[str, Path]:
 
 
 def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, params: SimParams,
-                 map_prior: bool = False) -> dict:
+                 learned: str = "") -> dict:
     """``runtime.json``: what the robot's loop needs besides the graphs.
 
     ``sampler``: DPM-Solver++(2M) over S steps as per-step constants: the model is evaluated at
@@ -145,11 +173,12 @@ def runtime_spec(model, meta: dict, sha256: str, sampling: SamplingSettings, par
     the frame (``d4``: element :func:`madp.robot.frame.frame_element` of the episode's seed and the
     step) and the rule keeping one of K samples per robot (:mod:`madp.policies.select`);
     ``motion``: the simulator constants the rule moves candidates with; ``source``: the checkpoint.
-    ``map_prior``: the export holds the map prior's graph (``graphs`` names it)."""
+    ``learned``: the export holds the graph of this learned network (a key of :data:`LEARNED_GRAPHS`;
+    ``graphs`` names it)."""
     cfg = model.config
     solver = model.make_sampler(sampling.sampler, sampling.sampling_steps, sampling.eta)
     return {
-        "format": FORMAT, "kind": "madp", "opset": OPSET, "graphs": {**GRAPHS, **(PRIOR_GRAPH if map_prior else {})},
+        "format": FORMAT, "kind": "madp", "opset": OPSET, "graphs": {**GRAPHS, **LEARNED_GRAPHS.get(learned, {})},
         "model": {"obs_channels": cfg.obs_channels, "obs_size": cfg.obs_size, "z_dim": cfg.z_dim,
                   "token_dim": cfg.token_dim, "d_model": cfg.d_model, "action_dim": cfg.action_dim,
                   "pos_token": cfg.pos_token, "num_train_steps": cfg.num_train_steps},
@@ -180,8 +209,9 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
 
     One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
     settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
-    ``oracle`` rules that read the world), and for a ``value`` rule with a policy file that carries no map
-    prior. With a rule that needs a map prior (:attr:`madp.selection.Rule.prior`) the prior is exported too."""
+    ``oracle`` rules that read the world), and for a rule that reads a learned network (a map prior or a
+    critic, :attr:`madp.selection.Rule.needs`) with a policy file that carries none; that network's graph
+    is exported too."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
@@ -192,10 +222,10 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
     policy = Path(policy)
     model, meta = load_policy(policy)
-    prior = load_map_prior(policy) if rule.prior else None
-    if rule.prior and prior is None:
-        raise InputError(f"{policy}: carries no map prior, which {sampling.select} ranks candidates on "
-                         "(madp value train adds one)")
+    learned = load_learned(policy, rule.needs) if rule.needs else None
+    if rule.needs and learned is None:
+        raise InputError(f"{policy}: carries no {rule.needs}, which {sampling.select} ranks candidates with "
+                         f"({NEEDS[rule.needs].made_by} adds one)")
     if meta["kind"] != "madp":
         raise InputError(f"{policy}: is a {meta['kind']} checkpoint; madp export writes MADP's graphs "
                          "(docs/guides/export.md: LPAC-K3)")
@@ -207,17 +237,19 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
                          f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}; a robot would command NaN")
     out = Path(out_dir)
     with locked_dir(out):
-        owned = [*GRAPHS.values(), *PRIOR_GRAPH.values(), RUNTIME_JSON]
+        owned = [*GRAPHS.values(), *(name for g in LEARNED_GRAPHS.values() for name in g.values()), RUNTIME_JSON]
         foreign = foreign_files(out, owned)
         if foreign:
             raise InputError(f"{foreign[0]}: not a file madp export writes; export into an empty --out directory")
         if any((out / name).exists() for name in owned) and not overwrite:
             raise InputError(f"{out}: already holds an export; pass --overwrite to replace it")
         (out / RUNTIME_JSON).unlink(missing_ok=True)  # no loadable export until every graph is written
-        (out / PRIOR_GRAPH["map_prior"]).unlink(missing_ok=True)  # an earlier export's prior, if any
-        paths = export_graphs(model, out, prior)
+        for graph in LEARNED_GRAPHS.values():  # an earlier export's prior or critic, if any
+            for name in graph.values():
+                (out / name).unlink(missing_ok=True)
+        paths = export_graphs(model, out, learned)
         spec = write_runtime(out, runtime_spec(model, meta, sha256_file(policy), sampling, params or SimParams(),
-                                               map_prior=prior is not None), paths)
+                                               learned=rule.needs), paths)
     return spec
 
 

@@ -131,7 +131,7 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
             for select in rule_names(sees=("samples",)) if k == 1 else [
                     s for s in rule_names(sees=("own map", "true map", "world")) if not RULES[s].prior or prior is not None]:
                 sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
-                policy = MADPPolicy(model, "decentralized", sampling, device=device, map_prior=prior)
+                policy = MADPPolicy(model, "decentralized", sampling, device=device, network=prior)
                 gen = noise_generator(seed)
                 times = timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
                 rows.append({"candidates": k, "select": select, "num_robots": num_robots, "sampler": policy.sampler,

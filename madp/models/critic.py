@@ -9,8 +9,9 @@ the training data's mean mass (``[R]``, ≥ 0) and its centroid's offset from th
 :data:`madp.robot.critic.OFFSET_SCALE_M` (``[R, 2]``, the window's axes). The offset is a spatial
 softmax over the coarse cells (a weighted mean of their centres) plus a small residual, so a centroid
 within the window is what the network finds easiest to express. Trained with the world's 8
-symmetries as augmentation (:mod:`madp.training.critic_fit`); stored in a safetensors file with its
-config in the metadata (:func:`save_critic`, :func:`load_critic`).
+symmetries as augmentation (:mod:`madp.training.critic_fit`); carried in a policy file beside the
+policy, its config in the metadata (:func:`madp.policies.checkpoint.attach`, :func:`load_critic`), where
+the ``critic`` selection rules read it (:data:`madp.selection.RULES`).
 """
 
 from __future__ import annotations
@@ -24,11 +25,10 @@ import torch
 from torch import Tensor, nn
 
 from madp.errors import InputError
-from madp.io.atomic import atomic_path
 from madp.robot.critic import CRITIC_CHANNELS, OFFSET_SCALE_M
 from madp.robot.prior import COARSE_M
 
-__all__ = ["Critic", "CriticConfig", "critic_env_select", "critic_predictor", "load_critic", "save_critic"]
+__all__ = ["Critic", "CriticConfig", "critic_predictor", "load_critic"]
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ class Critic(nn.Module):
 
 
 def critic_predictor(net: Critic):
-    """``net`` as :func:`madp.robot.critic.critic_select`'s ``predict``: ``(windows [R, 5, H, H],
+    """``net`` as :func:`madp.robot.critic.critic_costs`' ``predict``: ``(windows [R, 5, H, H],
     neighbours [R, M, 3])`` numpy -> ``(mass [R], offset_m [R, 2])`` float64 numpy (the mass in the
     data's unit, the offset in metres)."""
     p = next(net.parameters())
@@ -96,21 +96,11 @@ def critic_predictor(net: Critic):
     return predict
 
 
-def save_critic(net: Critic, out: Path, record: dict) -> None:
-    """``net``'s weights, config and ``record`` (how it was trained) to ``out`` (.safetensors), atomically."""
-    from safetensors.torch import save_file
-
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tensors = {k: v.detach().contiguous() for k, v in net.state_dict().items()}
-    with atomic_path(out, ".safetensors") as tmp:
-        save_file(tensors, str(tmp), metadata={"critic": json.dumps(net.config.to_dict()),
-                                               "critic_training": json.dumps(record)})
-
-
-def load_critic(path: Path) -> Critic:
-    """The critic in ``path`` (eval mode, how it was trained in ``.record``); one-line errors for a
-    missing or foreign file."""
+def load_critic(path: Path, required: bool = True) -> Critic | None:
+    """The critic in ``path`` (eval mode, how it was trained in ``.record``): a policy file that carries
+    one (``madp critic train``: weights ``critic.*``, config in the metadata key ``critic``) or a file of
+    the critic alone (its weights unprefixed). None when ``path`` carries none and not ``required``;
+    one-line errors for a missing, damaged or foreign file."""
     from safetensors import safe_open
 
     path = Path(path)
@@ -119,27 +109,19 @@ def load_critic(path: Path) -> Critic:
     try:
         with safe_open(str(path), framework="pt") as f:
             meta = f.metadata() or {}
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
+            keys = list(f.keys())
+            if "critic" not in meta and not required:
+                return None
+            prefixed = any(k.startswith("critic.") for k in keys)
+            tensors = {k.removeprefix("critic."): f.get_tensor(k) for k in keys
+                       if k.startswith("critic.") or not prefixed}
         net = Critic(CriticConfig.from_dict(json.loads(meta["critic"])))
+        if not all(torch.isfinite(v).all() for v in tensors.values()):
+            raise InputError(f"{path}: the critic's weights hold NaN or infinity")
         net.load_state_dict(tensors)
         net.record = json.loads(meta.get("critic_training", "{}"))
+    except InputError:
+        raise
     except Exception as e:
         raise InputError(f"{path}: not a critic file ({type(e).__name__})") from None
     return net.eval()
-
-
-def critic_env_select(env, candidates_mps: np.ndarray, net: Critic, scope: str = "team") -> np.ndarray:
-    """The swarm's kept actions ``[N, 2]`` among the joint copies ``candidates_mps [K, N, 2]`` of the
-    simulator's ``env`` (:class:`madp.sim.CoverageEnv`), as the robots would keep them with the critic
-    ``net`` (:func:`madp.robot.critic.critic_select` on every robot's :func:`madp.robot.choice.local_views`
-    row, ``scope`` one of :data:`madp.robot.critic.CRITIC_SCOPES`). A robot that holds no neighbour takes
-    its bounded Lloyd step instead, as under the other rules that read a robot's map
-    (:func:`madp.robot.choice.lone_steps`, on ``explore``'s map)."""
-    from madp.robot.choice import explore_prior, local_views, lone_steps
-    from madp.robot.critic import critic_inputs, critic_select
-
-    views = local_views(env)
-    chosen = critic_select(candidates_mps, views, critic_inputs(env.maps, views, env.params.comm_radius_m),
-                           critic_predictor(net), env.neighbour_view()[0], env.params, scope)
-    lone, steps = lone_steps(explore_prior(env, views), env.params)
-    return np.where(lone[:, None], steps, chosen)

@@ -21,6 +21,7 @@ from torch import nn
 
 from madp.errors import InputError
 from madp.models import MADP, LPACConfig, MADPConfig
+from madp.selection import NEEDS
 
 from .parts import read_parts
 
@@ -28,6 +29,10 @@ SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
 #: Names of the weights of a policy file's map prior (the ``value`` rule's network) start with this;
 #: its config is the metadata key ``map_prior``.
 MAP_PRIOR_PREFIX = "map_prior."
+#: The learned networks a policy file may carry beside the policy, by what a selection rule needs
+#: (:data:`madp.selection.NEEDS`): each one's weight names start with its key plus ".", its config is
+#: the metadata key, how it was trained the key plus "_training".
+LEARNED = {name: n.key for name, n in NEEDS.items()}
 
 
 def shipped_checkpoint(kind: str) -> Path | None:
@@ -77,8 +82,9 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
         meta = {k: json.loads(v) for k, v in metadata.items() if k not in ("kind", "config")}
     except (ValueError, TypeError, KeyError, AttributeError) as e:
         raise InputError(f"{path}: malformed checkpoint metadata ({type(e).__name__})") from None
-    state = {k: v for k, v in state.items() if not k.startswith(MAP_PRIOR_PREFIX)}  # load_map_prior's
-    meta.pop("map_prior", None)
+    state = {k: v for k, v in state.items() if not k.startswith(tuple(f"{key}." for key in LEARNED.values()))}
+    for key in LEARNED.values():  # load_learned's
+        meta.pop(key, None)
     load_weights(model, state, path, f"the {kind} config it carries")
     meta["kind"], meta["config"] = kind, model.config.to_dict()  # today's names, whatever the file's age
     return model.to(device).eval(), meta
@@ -108,6 +114,38 @@ def load_map_prior(path: str | Path, device: str | torch.device = "cpu"):
         raise InputError(f"{path}: the map prior's weights hold NaN or infinity")
     load_weights(net, state, path, "the map prior its metadata describes")
     return net.to(device).eval()
+
+
+def load_learned(path: str | Path, needs: str, device: str | torch.device = "cpu"):
+    """The learned network ``needs`` (a key of :data:`LEARNED`) that the policy file ``path`` carries:
+    its map prior (:func:`load_map_prior`) or its critic (:func:`madp.models.critic.load_critic`), in eval
+    mode; None when it carries none."""
+    if needs == "map prior":
+        return load_map_prior(path, device)
+    from madp.models.critic import load_critic
+
+    net = load_critic(path, required=False)
+    return None if net is None else net.to(device)
+
+
+def attach(policy: Path, out: Path, needs: str, net: nn.Module, config: dict, record: dict) -> None:
+    """``policy``'s tensors and metadata with the learned network ``net`` (``needs``, a key of
+    :data:`LEARNED`; its ``config`` and how it was trained, ``record``) added in place of any it carried,
+    written to ``out`` under a temporary name."""
+    from safetensors.torch import save_file
+
+    from madp.io.atomic import atomic_path
+
+    key = LEARNED[needs]
+    with safe_open(str(policy), framework="pt") as f:
+        metadata = dict(f.metadata() or {})
+        tensors = {k: f.get_tensor(k) for k in f.keys() if not k.startswith(f"{key}.")}
+    tensors.update({f"{key}.{k}": v.detach().cpu().contiguous() for k, v in net.state_dict().items()})
+    metadata[key] = json.dumps(config)
+    metadata[f"{key}_training"] = json.dumps(record)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(Path(out), ".safetensors") as tmp:
+        save_file(tensors, str(tmp), metadata=metadata)
 
 
 def read_weights(path: Path, device: str | torch.device = "cpu") -> dict:

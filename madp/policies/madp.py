@@ -132,7 +132,7 @@ class MADPPolicy:
     one action per robot (:func:`select_actions`)."""
 
     def __init__(self, model, mode: str = "decentralized", sampling: SamplingSettings | None = None, seed: int = 0,
-                 device: str = "cpu", map_prior=None):
+                 device: str = "cpu", network=None):
         if mode not in ("decentralized", "centralized"):
             raise SettingError("mode", f"expected decentralized or centralized, got {mode!r}")
         self.sampling = sampling = sampling or SamplingSettings()
@@ -141,7 +141,7 @@ class MADPPolicy:
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)
         self.sampler, self.fixed_noise, self.frame = sampling.sampler, bool(sampling.fixed_noise), sampling.frame
         self.select, self.candidates = sampling.select, int(sampling.candidates)
-        self.map_prior = map_prior  # the value rule's learned map prior (madp.models.map_prior), if any
+        self.network = network  # the learned network its rule reads (a map prior or a critic), if any
         self._fixed: dict[int, torch.Tensor] = {}
         self.stochastic = self.sampler == "ddim" and self.eta > 0  # fresh noise at every sampler step
         self.device = torch.device(device)
@@ -263,7 +263,7 @@ class MADPPolicy:
         if k == 1:
             return u
         u = u.reshape(len(envs), k, *u.shape[1:])
-        return np.stack([select_actions(self.select, e, c, self.map_prior) for e, c in zip(envs, u)])
+        return np.stack([select_actions(self.select, e, c, self.network) for e, c in zip(envs, u)])
 
     def __call__(self, env: CoverageEnv) -> np.ndarray:
         return self.sample(env, 1)[0]

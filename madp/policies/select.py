@@ -17,7 +17,7 @@ import numpy as np
 
 from madp.errors import SettingError
 from madp.robot.choice import GRID_M, LocalViews, explore_prior, joint_copy, local_cell_costs, local_views
-from madp.selection import choose, rule, weigh
+from madp.selection import NEEDS, choose, rule, weigh
 from madp.sim.env import CoverageEnv, move
 from madp.sim.voronoi import coverage_cost, world_sums
 
@@ -40,21 +40,23 @@ def oracle_cell_costs(env: CoverageEnv, actions_mps: np.ndarray) -> np.ndarray:
     return np.stack([world_sums(env.prefix, p, True, with_centroids=False).cost for p in pos], 1)
 
 
-def predictor_of(map_prior):
-    """The torch-free ``predict`` of a policy file's map prior (:class:`madp.models.map_prior.MapPrior`), or None."""
-    if map_prior is None:
+def predictor_of(network):
+    """The numpy-in, numpy-out ``predict`` of a policy file's learned network: its map prior
+    (:class:`madp.models.map_prior.MapPrior`) or its critic (:class:`madp.models.critic.Critic`); None for None."""
+    if network is None:
         return None
+    from madp.models.critic import Critic, critic_predictor
     from madp.models.map_prior import predictor
 
-    return predictor(map_prior)
+    return critic_predictor(network) if isinstance(network, Critic) else predictor(network)
 
 
-def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, map_prior=None) -> np.ndarray:
+def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, network=None) -> np.ndarray:
     """The swarm's action ``[N, 2]`` kept by rule ``select`` among ``candidates_mps [K, N, 2]``
     (copy k of the batch in row k): ``oracle`` by the true J of each joint sample; every other rule by
     :func:`madp.selection.choose` on each robot's :func:`local_views` (the true map's for the
-    bounds that read it) weighed by the rule, ``map_prior`` (:class:`madp.models.map_prior.MapPrior`)
-    for the rules that need one."""
+    bounds that read it) weighed by the rule, ``network`` the policy file's learned network the rule
+    needs (:attr:`madp.selection.Rule.needs`: a map prior or a critic, :func:`madp.policies.checkpoint.load_learned`)."""
     r = rule(select)
     per_robot = candidates_mps.transpose(1, 0, 2)  # [N, K, 2]
     if r.sees == "world" and r.joint:  # each neighbourhood's copy of least true J over its robots' cells
@@ -64,8 +66,9 @@ def select_actions(select: str, env: CoverageEnv, candidates_mps: np.ndarray, ma
         return candidates_mps[int(np.argmin(oracle_costs(env, candidates_mps)))]
     if not r.ranks:
         return choose(r, per_robot, None, env.params)[0]
-    if r.prior and map_prior is None:
-        raise SettingError("select", f"{select} scores candidates on a learned map prior: expected a policy file "
-                                     "that carries one (madp value train)")
-    views = weigh(r, env.maps, local_views(env, true_map=r.sees == "true map"), predictor_of(map_prior))
-    return choose(r, per_robot, views, env.params, env.neighbour_view()[0] if r.joint else None)[0]
+    if r.needs and network is None:
+        raise SettingError("select", f"{select} reads a learned {r.needs}: expected a policy file that carries one "
+                                     f"({NEEDS[r.needs].made_by})")
+    predict = predictor_of(network)
+    views = weigh(r, env.maps, local_views(env, true_map=r.sees == "true map"), predict)
+    return choose(r, per_robot, views, env.params, env.neighbour_view()[0] if r.joint else None, predict)[0]

@@ -41,7 +41,9 @@ class LocalViews:
     ``valid`` [R, M]: which of them are real; ``anchor_m`` [R, 2]: where it last heard a neighbour
     (its position estimate at that step; its first one until then), around which a robot that hears
     no one covers (:func:`lone_steps`). None: its own position. ``sensed`` [R, G, G]: the weights
-    before a prior was added to its unexplored blocks (None: no prior was added)."""
+    before a prior was added to its unexplored blocks (None: no prior was added). ``unexplored``
+    [R, G, G] bool: its window's blocks inside the world it has not explored (:func:`unexplored_blocks`;
+    None unless its rule reads them)."""
 
     start_m: np.ndarray
     offset_m: np.ndarray
@@ -51,12 +53,13 @@ class LocalViews:
     valid: np.ndarray
     anchor_m: np.ndarray | None = None
     sensed: np.ndarray | None = None
+    unexplored: np.ndarray | None = None
 
     def row(self, i: int) -> "LocalViews":
         """Robot i's row alone (R = 1)."""
         return LocalViews(*(None if v is None else v[i:i + 1] for v in
                             (self.start_m, self.offset_m, self.weights, self.origin_m, self.neighbours_m, self.valid,
-                             self.anchor_m, self.sensed)))
+                             self.anchor_m, self.sensed, self.unexplored)))
 
 
 #: The share of a prior's mass on its unexplored blocks that a robot that hears no one counts

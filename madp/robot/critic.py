@@ -9,7 +9,7 @@ only), ``Σ_i M_i (|δ_ik − d_i|² − |d_i|²)``: M_i the true mass of robot 
 offset of its true centroid from its position, δ_ik robot i's move in copy k. Both are properties of
 the whole cell, which reaches far into land the robot has not sensed. The network
 (:class:`madp.models.critic.Critic`) predicts them, per robot, from what the robot knows (its window,
-:func:`critic_inputs`), and :func:`copy_scores` turns them into each copy's predicted change of J
+:func:`critic_inputs` of its :func:`critic_view`), and :func:`copy_scores` turns them into each copy's predicted change of J
 for that robot's part, ``s_ik``. A copy's team score is ``Σ_i s_ik``; a neighbourhood's, the sum over
 the robots whose positions the robot holds (one more round of messages, as ``value_joint``'s costs).
 
@@ -23,6 +23,7 @@ neighbours are in the cell; and the offsets of its nearest neighbours, those bey
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,14 +32,14 @@ from madp.errors import SettingError
 from madp.sim.env import move
 from madp.sim.params import SimParams
 
-from .choice import GRID_M, LocalViews
-from .prior import COARSE_M, coarse_sum, window_inputs
+from .choice import GRID_M, LocalViews, map_prior, unexplored_blocks
+from .prior import COARSE_M, coarse_sum, prior_inputs, window_masks
 
 if TYPE_CHECKING:
     from madp.sim.robot_maps import RobotMaps
 
 __all__ = ["CRITIC_CHANNELS", "CRITIC_SCOPES", "MAX_NEIGHBOURS", "OFFSET_SCALE_M", "copy_scores", "critic_choice",
-           "critic_inputs", "critic_select", "displacements_m", "neighbour_counts", "neighbour_features", "onnx_predictor",
+           "critic_costs", "critic_inputs", "critic_view", "displacements_m", "neighbour_counts", "neighbour_features", "onnx_predictor",
            "own_cell_fraction"]
 
 #: Input channels: the map prior's three, the own-cell fraction, the neighbours per coarse cell.
@@ -100,13 +101,26 @@ def neighbour_features(offsets_m: np.ndarray, valid: np.ndarray, comm_radius_m: 
     return out
 
 
-def critic_inputs(maps: RobotMaps, views: LocalViews, comm_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """The critic's inputs for the robots of ``maps`` (module docstring): their windows ``[R, 5, H, H]``
-    float32 and their nearest neighbours' offsets ``[R, MAX_NEIGHBOURS, 3]`` (:func:`neighbour_features`)."""
-    x, _, _ = window_inputs(maps, views)
+def critic_view(maps: RobotMaps, views: LocalViews) -> LocalViews:
+    """``views`` (rows of the robots of ``maps``) as the ``critic`` rules hold them: ``explore``'s map
+    (:func:`madp.robot.choice.map_prior`: a lone robot's step reads it; ``sensed`` keeps the sensed
+    map) and each window's unexplored blocks, all :func:`critic_inputs` reads of the robots' maps."""
+    return replace(map_prior(maps, views), unexplored=unexplored_blocks(maps, views))
+
+
+def critic_inputs(views: LocalViews, params: SimParams) -> tuple[np.ndarray, np.ndarray]:
+    """The critic's inputs (module docstring) from the robots' :func:`critic_view` rows: their windows
+    ``[R, 5, H, H]`` float32 (the sensed map: ``views.sensed``, else ``views.weights``) and their
+    nearest neighbours' offsets ``[R, MAX_NEIGHBOURS, 3]`` (:func:`neighbour_features`); ``params``:
+    the world's size and r_c."""
+    if views.unexplored is None:
+        raise ValueError("critic_inputs reads each window's unexplored blocks: pass critic_view's rows")
+    sensed = views.weights if views.sensed is None else views.sensed
+    inside = window_masks(views.origin_m, sensed.shape[1], GRID_M, params.world_size)
+    x = prior_inputs(sensed, views.unexplored, inside, GRID_M)
     windows = np.concatenate([x, own_cell_fraction(views)[:, None], neighbour_counts(views)[:, None]], 1)
     own = views.start_m + views.offset_m
-    return windows, neighbour_features(views.neighbours_m - own[:, None], views.valid, comm_radius_m)
+    return windows, neighbour_features(views.neighbours_m - own[:, None], views.valid, params.comm_radius_m)
 
 
 def displacements_m(views: LocalViews, candidates_mps: np.ndarray, params: SimParams) -> np.ndarray:
@@ -141,27 +155,22 @@ def critic_choice(scores: np.ndarray, neighbours: np.ndarray, scope: str) -> np.
     raise SettingError("scope", f"expected one of {', '.join(CRITIC_SCOPES)}, got {scope!r}")
 
 
-def critic_select(candidates_mps: np.ndarray, views: LocalViews, inputs: tuple[np.ndarray, np.ndarray], predict,
-                  neighbours: np.ndarray, params: SimParams, scope: str = "team") -> np.ndarray:
-    """The swarm's kept actions ``[N, 2]`` among the joint copies ``candidates_mps [K, N, 2]``: each
-    robot's cell mass and centroid offset from ``predict(*inputs) -> (mass [N], offset_m [N, 2])``
-    (``inputs``: :func:`critic_inputs`; ``predict``: :func:`madp.models.critic.critic_predictor` or
-    :func:`onnx_predictor`), the copies' scores
-    (:func:`copy_scores`) and the copy ``scope`` keeps (:func:`critic_choice`). ``views``: each
-    robot's :class:`LocalViews` row; ``neighbours [N, N]``: whose scores each robot holds."""
+def critic_costs(views: LocalViews, candidates_mps: np.ndarray, params: SimParams, predict) -> np.ndarray:
+    """``[R, K]``: each robot's predicted share of the change of J of each of its candidates
+    ``candidates_mps [R, K, 2]`` (m/s; :func:`copy_scores`, lower is better), the ``critic`` rules'
+    ``score`` (:data:`madp.selection.RULES`). ``views``: the robots' :func:`critic_view` rows, read
+    through :func:`critic_inputs`; ``predict(windows, neighbours) -> (mass [R], offset_m [R, 2])``:
+    :func:`madp.models.critic.critic_predictor` or :func:`onnx_predictor`."""
     cand = np.asarray(candidates_mps, np.float64)
-    if cand.ndim != 3 or cand.shape[2] != 2 or cand.shape[1] != len(views.start_m):
-        raise SettingError("candidates_mps", f"expected [K, {len(views.start_m)}, 2], got {list(cand.shape)}")
-    per_robot = cand.transpose(1, 0, 2)  # [N, K, 2]
-    mass, offset_m = predict(*inputs)
-    scores = copy_scores(mass, offset_m, displacements_m(views, per_robot, params))
-    k = critic_choice(scores, neighbours, scope)
-    return np.take_along_axis(per_robot, k[:, None, None], 1)[:, 0]
+    if cand.ndim != 3 or cand.shape[2] != 2 or cand.shape[0] != len(views.start_m):
+        raise SettingError("candidates_mps", f"expected [{len(views.start_m)}, K, 2], got {list(cand.shape)}")
+    mass, offset_m = predict(*critic_inputs(views, params))
+    return copy_scores(mass, offset_m, displacements_m(views, cand, params))
 
 
 def onnx_predictor(path, threads: int = 1):
-    """The exported critic (``madp critic export``, :mod:`madp.export.critic_onnx`) as
-    :func:`critic_select`'s ``predict``, on onnxruntime's CPU provider with ``threads`` threads:
+    """The exported critic (``madp critic export``, :func:`madp.export.onnx.export_critic`) as
+    :func:`critic_costs`' ``predict``, on onnxruntime's CPU provider with ``threads`` threads:
     ``(windows [R, 5, H, H], neighbours [R, MAX_NEIGHBOURS, 3])`` -> ``(mass [R], offset_m [R, 2])``
     float64. A one-line error for a missing or damaged graph."""
     import onnxruntime as ort

@@ -37,7 +37,7 @@ from madp.errors import InputError, SettingError
 from madp.io.checksum import sha256_file
 from madp.io.jsonfile import read_json
 from madp.sampling import parse_sampling, spec_text
-from madp.selection import RULES, Rule, check_rule, choose, rule_names, weigh
+from madp.selection import NEEDS, RULES, Rule, check_rule, choose, rule_names, weigh
 from madp.sim.network import Message
 from madp.sim.params import SimParams
 from madp.sim.rules import clip_speed, closer_than_squared
@@ -108,7 +108,8 @@ class RobotRuntime:
             raise InputError(f"{spec_file}: expected format {FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
         self.spec = spec
         try:  # a missing or bad field: one line naming the file, not a KeyError
-            roles = (*GRAPHS, "map_prior") if "map_prior" in spec["graphs"] else GRAPHS  # the prior: value rules only
+            learned = [n.key for n in NEEDS.values() if n.key in spec["graphs"]]  # a map prior or a critic: their rules only
+            roles = (*GRAPHS, *learned)
             graphs = {role: str(spec["graphs"][role]) for role in roles}
             m, sel = spec["model"], spec["selection"]
             self.token_dim, self.z_dim, self.action_dim = int(m["token_dim"]), int(m["z_dim"]), int(m["action_dim"])
@@ -128,9 +129,9 @@ class RobotRuntime:
         if self.rule not in runs:
             raise InputError(f"{spec_file}: selection rule {self.rule!r} is not one a robot runs ({', '.join(runs)})")
         self.record: Rule = RULES[self.rule]
-        if self.record.prior and "map_prior" not in graphs:
-            raise InputError(f"{spec_file}: selection rule {self.rule} needs the map prior's graph, which the export "
-                             "does not name (export again from a policy file that carries one)")
+        if self.record.needs and NEEDS[self.record.needs].key not in graphs:
+            raise InputError(f"{spec_file}: selection rule {self.rule} needs the {self.record.needs}'s graph, which the "
+                             "export does not name (export again from a policy file that carries one)")
         self.max_age = max_age
         self._check_graphs(spec_file, graphs)
         opts = ort.SessionOptions()
@@ -204,11 +205,26 @@ class RobotRuntime:
         x = np.ascontiguousarray(windows, np.float32)
         return self.sessions["map_prior"].run(None, {"windows": x})[0].astype(np.float64)
 
+    def predict_critic(self, windows: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The critic's graph: ``windows [R, 5, H, H]``, ``neighbours [R, M, 3]``
+        (:func:`madp.robot.critic.critic_inputs`) -> each robot's cell mass ``[R]`` and centroid offset
+        ``[R, 2]`` m (float64)."""
+        from .critic import OFFSET_SCALE_M
+
+        mass, offset = self.sessions["critic"].run(None, {"windows": np.ascontiguousarray(windows, np.float32),
+                                                          "neighbours": np.ascontiguousarray(neighbours, np.float32)})
+        return mass.astype(np.float64), offset.astype(np.float64) * OFFSET_SCALE_M
+
+    @property
+    def predict(self):
+        """The forward of the learned network its rule reads (:attr:`madp.selection.Rule.needs`), or None."""
+        return {"map prior": self.predict_prior, "critic": self.predict_critic}.get(self.record.needs)
+
     def view(self, maps, view: LocalViews) -> LocalViews:
         """A robot's view as its rule ranks on: ``view`` (from its own ``maps``, :func:`madp.robot.choice.map_views`)
         weighed by the rule (:func:`madp.selection.weigh`; the map prior's graph for the rules that
         need one)."""
-        return weigh(self.record, maps, view, self.predict_prior if self.record.prior else None)
+        return weigh(self.record, maps, view, self.predict)
 
     def frame_of(self, seed: int, step: int) -> int:
         """The d4 element of ``step`` of the episode of ``seed`` (0 with ``frame="world"``)."""
@@ -302,7 +318,7 @@ class RobotRuntime:
         u = inverse_action(u, g) if g else u
         u = clip_speed(u, self.params.max_speed_mps)
         if self.joint and len(u) > 1:  # provisional: its own best, or its lone step; costs for the cost round
-            action, costs = choose(self.record, u[None], self._row(view, nbr_m), self.params)
+            action, costs = choose(self.record, u[None], self._row(view, nbr_m), self.params, predict=self.predict)
             return StepResult(action[0], u, own, counts, costs[0], not len(nbr_m))
         return StepResult(self.choose(u, view, nbr_m), u, own, counts)
 
@@ -322,7 +338,8 @@ class RobotRuntime:
         :func:`madp.selection.choose` on its ``view`` with ``neighbours_m [M, 2]``."""
         if not self.record.ranks or len(candidates_mps) == 1:
             return candidates_mps[0]
-        return choose(self.record, candidates_mps[None], self._row(view, neighbours_m), self.params)[0][0]
+        return choose(self.record, candidates_mps[None], self._row(view, neighbours_m), self.params,
+                      predict=self.predict)[0][0]
 
     # ------------------------------------------------------------------------------ the cost round
     def cost_message(self, result: StepResult) -> Message:

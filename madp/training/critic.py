@@ -36,7 +36,7 @@ from madp.io.npz import load_npz
 from madp.policies.select import oracle_costs, predictor_of
 from madp.robot.prior import value_view
 from madp.robot.choice import explore_prior, local_cell_costs, local_views
-from madp.robot.critic import critic_inputs
+from madp.robot.critic import critic_inputs, critic_view
 from madp.sim import CoverageEnv, SimParams
 from madp.sim.rollout import Hook, run
 from madp.sim.rules import clip_speed
@@ -79,7 +79,7 @@ def state_record(env: CoverageEnv, copies_mps: np.ndarray, map_prior=None) -> di
     explore = local_cell_costs(explore_prior(env, views), per_robot, env.params)
     value = (local_cell_costs(value_view(env.maps, views, predictor_of(map_prior)), per_robot, env.params) if map_prior is not None
              else np.full_like(explore, np.nan))
-    windows, _ = critic_inputs(env.maps, views, env.params.comm_radius_m)  # the neighbours' part: stored_neighbours
+    windows, _ = critic_inputs(critic_view(env.maps, views), env.params)  # the neighbours' part: stored_neighbours
     return {"x": windows, "actions_mps": copies_mps, "j_before": env.cost(),
             "j_after": oracle_costs(env, copies_mps), "position_m": env.positions_m.copy(),
             "start_m": env.start_m.copy(), "offset_m": env.offset_m.copy(), "neighbours": env.neighbour_view()[0],

@@ -31,7 +31,7 @@ import torch
 
 from madp.selection import DEFAULT_RULE
 from madp.errors import SettingError
-from madp.models.critic import Critic, CriticConfig, save_critic
+from madp.models.critic import Critic, CriticConfig
 from madp.models.symmetry import _vectors, transform_image
 from madp.robot.critic import CRITIC_SCOPES, OFFSET_SCALE_M, critic_choice
 from madp.sim.env import move
@@ -150,9 +150,10 @@ def _losses(net: Critic, b: dict[str, torch.Tensor], g: int) -> tuple[torch.Tens
 
 def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch: int = 8, lr: float = 2e-3,
           rank_weight: float = 3.0, seed: int = 0, config: CriticConfig | None = None, record: dict | None = None,
-          log=print) -> Critic:
+          log=print, policy: Path | None = None) -> Critic:
     """Fit a critic to the states of ``data`` (:func:`madp.training.critic.load_labels`) whose
-    environment is in ``train_envs``, and write it to ``out`` (:func:`madp.models.critic.save_critic`).
+    environment is in ``train_envs``, and write the MADP policy file ``policy`` (None: the shipped one)
+    carrying it to ``out`` (:func:`madp.policies.checkpoint.attach`), for the ``critic`` selection rules.
     ``batch``: states per step; ``rank_weight``: the ranking loss's weight beside the cell loss."""
     rows = np.flatnonzero(np.isin(data["env"], train_envs))
     if len(rows) == 0:
@@ -187,8 +188,11 @@ def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch
         log(f"epoch {epoch + 1}/{epochs}: cell {sums[0] / per_epoch:.4f}, rank {sums[1] / per_epoch:.4f} "
             f"({time.perf_counter() - t0:.0f} s)")
     net.eval()
-    save_critic(net, out, {**(record or {}), "epochs": epochs, "batch": batch, "lr": lr, "rank_weight": rank_weight,
-                           "seed": seed, "train_envs": [int(e) for e in train_envs], "states": int(len(rows))})
+    from madp.policies.checkpoint import attach, shipped_checkpoint
+
+    attach(Path(policy) if policy else shipped_checkpoint("madp"), out, "critic", net, cfg.to_dict(),
+           {**(record or {}), "epochs": epochs, "batch": batch, "lr": lr, "rank_weight": rank_weight,
+            "seed": seed, "train_envs": [int(e) for e in train_envs], "states": int(len(rows))})
     return net
 
 

@@ -27,8 +27,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors import safe_open
-from safetensors.torch import save_file
 
 from madp.io.checksum import sha256_file
 from madp.datagen.plan import scenario_seed
@@ -37,6 +35,7 @@ from madp.io.atomic import atomic_path
 from madp.io.npz import load_npz
 from madp.models.map_prior import MapPrior, MapPriorConfig, prior_targets
 from madp.models.symmetry import transform_image
+from madp.policies.checkpoint import attach
 from madp.robot.choice import GRID_M, local_views
 from madp.robot.prior import window_inputs
 from madp.sim import CoverageEnv, Scenario, SimParams
@@ -234,12 +233,4 @@ def train(data: Path, policy: Path, out: Path, epochs: int = 8, batch: int = 256
 
 def add_prior(policy: Path, out: Path, net: MapPrior, record: dict) -> None:
     """``policy``'s tensors and metadata with ``net`` added, written to ``out`` under a temporary name."""
-    with safe_open(str(policy), framework="pt") as f:
-        metadata = dict(f.metadata() or {})
-        tensors = {k: f.get_tensor(k) for k in f.keys() if not k.startswith("map_prior.")}
-    tensors.update({f"map_prior.{k}": v.detach().contiguous() for k, v in net.state_dict().items()})
-    metadata["map_prior"] = json.dumps(net.config.to_dict())
-    metadata["map_prior_training"] = json.dumps(record)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out, ".safetensors") as tmp:
-        save_file(tensors, str(tmp), metadata=metadata)
+    attach(Path(policy), out, "map prior", net, net.config.to_dict(), record)

@@ -62,8 +62,8 @@ class Capture:
         self.calls = []
         monkeypatch.setattr(madp_policy, "select_actions", self)
 
-    def __call__(self, select, env, candidates, map_prior=None):
-        chosen = select_actions(select, env, candidates, map_prior)
+    def __call__(self, select, env, candidates, network=None):
+        chosen = select_actions(select, env, candidates, network)
         self.calls.append((candidates.copy(), chosen))
         return chosen
 
@@ -278,9 +278,9 @@ def test_oracle_joint_is_the_joint_choice_on_the_true_map():
     (["eval", "--candidates", "0", "--select", "explore"], "madp: error: --candidates: expected a whole number of "
                                                        "samples per robot >= 1, got 0"),
     (["eval", "--select", "none", "--candidates", "3"], "madp: error: --select/--candidates: 3 candidates per robot need a rule to choose "
-                                    "among them (explore, value, value_explore, value_joint, value_explore_joint, oracle, oracle_hood, oracle_cell, oracle_joint), got select none"),
+                                    "among them (explore, value, value_explore, value_joint, value_explore_joint, critic, critic_hood, oracle, oracle_hood, oracle_cell, oracle_joint), got select none"),
     (["eval", "--select", "vote", "--candidates", "3"], "madp: error: --select: expected one of none, explore, value, "
-                                                        "value_explore, value_joint, value_explore_joint, oracle, oracle_hood, oracle_cell, "
+                                                        "value_explore, value_joint, value_explore_joint, critic, critic_hood, oracle, oracle_hood, oracle_cell, "
                                                         "oracle_joint, got 'vote'"),
 ])
 def test_bad_selection_flags_are_one_line(tmp_path, args, line):

@@ -46,26 +46,31 @@ def test_control_steps_match_the_pytorch_policy(frame):
     assert env_o.neighbours().sum() > 0  # neighbourhoods of several robots, not lone ones
 
 
-@pytest.mark.parametrize("select", ["value", "value_explore", "value_joint", "value_explore_joint"])
-def test_value_rules_through_the_export_match_the_pytorch_policy(tmp_path, select):
-    """The ``value`` rules robot by robot, the map prior through its exported graph (and under a
-    ``_joint`` rule the cost round), act within 1e-4 m/s of the PyTorch policy with the same noise over
-    3 steps of a packed swarm; the prior (random here) changes what some robot keeps against
-    ``explore``, and the cost round what it keeps against the same rule robot by robot."""
+@pytest.mark.parametrize("select", ["value", "value_explore", "value_joint", "value_explore_joint", "critic", "critic_hood"])
+def test_learned_rules_through_the_export_match_the_pytorch_policy(tmp_path, select):
+    """The rules that read a learned network (the ``value`` rules' map prior, the ``critic`` rules'
+    critic) robot by robot, the network through its exported graph (and under a ``_joint`` rule the cost
+    round), act within 1e-4 m/s of the PyTorch policy with the same noise over 3 steps of a packed
+    swarm; the network (random here) changes what some robot keeps against ``explore``, and the cost
+    round what it keeps against the same rule robot by robot."""
+    from madp.models.critic import Critic
     from madp.models.map_prior import MapPrior
-    from madp.policies.checkpoint import load_map_prior
-    from madp.training.map_prior import add_prior
+    from madp.policies.checkpoint import attach, load_learned
+    from madp.selection import RULES
 
     torch.manual_seed(1)
     policy = tmp_path / "policy.safetensors"
-    add_prior(shipped_checkpoint("madp"), policy, MapPrior().eval(), {})
+    needs = RULES[select].needs
+    net = (MapPrior() if needs == "map prior" else Critic()).eval()
+    attach(shipped_checkpoint("madp"), policy, needs, net, net.config.to_dict(), {})
     sampling = SamplingSettings.of(select=select)
     sc = Scenario.random(3, SimParams(num_robots=10, num_features=8), launch=(300.0, 300.0, 650.0, 650.0))
     env_t, env_o = CoverageEnv(sc), CoverageEnv(sc)
-    torch_policy = MADPPolicy(load(policy, "madp")[0], sampling=sampling, seed=3, map_prior=load_map_prior(policy))
+    torch_policy = MADPPolicy(load(policy, "madp")[0], sampling=sampling, seed=3, network=load_learned(policy, needs))
     # the rule it is checked against: explore, and for a _joint rule its per-robot rule (no cost round)
-    other = SamplingSettings.of(select=select.removesuffix("_joint")) if select.endswith("_joint") else SamplingSettings()
-    explore = MADPPolicy(load(policy, "madp")[0], sampling=other, seed=3, map_prior=load_map_prior(policy))
+    alone = {"value_joint": "value", "value_explore_joint": "value_explore", "critic_hood": "critic"}
+    other = SamplingSettings.of(select=alone[select]) if RULES[select].joint else SamplingSettings()
+    explore = MADPPolicy(load(policy, "madp")[0], sampling=other, seed=3, network=load_learned(policy, needs))
     onnx_policy = OnnxMADPPolicy(policy, sampling, seed=3)
     assert onnx_policy.runtime.rule == select
     g_t, g_o, g_e = noise_generator(3), noise_generator(3), noise_generator(3)

@@ -8,15 +8,16 @@ import pytest
 import torch
 
 from madp.errors import InputError, SettingError
-from madp.models.critic import critic_env_select, critic_predictor, load_critic
-from madp.policies.select import oracle_costs
-from madp.robot.choice import local_views
-from madp.robot.critic import (copy_scores, critic_choice, critic_inputs, critic_select, neighbour_counts,
+from madp.models.critic import critic_predictor, load_critic
+from madp.policies.select import oracle_costs, select_actions
+from madp.robot.choice import explore_prior, joint_copy, local_views, lone_steps
+from madp.robot.critic import (copy_scores, critic_choice, critic_costs, critic_inputs, critic_view, displacements_m, neighbour_counts,
                                own_cell_fraction)
 from madp.sim import CoverageEnv, SimParams
 from madp.sim.voronoi import coverage_cost
 from madp.training.critic import collect, load_labels, load_many, split_envs, stored_neighbours, world_prefix
 from madp.training.critic_fit import gain_share, predicted_scores, ranking, spearman, state_moves, train
+from madp.robot.prior import window_inputs
 from madp.training.map_prior import _scenario
 from tests.test_reliability_errors import cli
 
@@ -45,7 +46,7 @@ def test_labels_have_their_shapes_and_are_the_copies_true_j(labels):
         assert data["j_before"][i] == coverage_cost(env.prefix, data["position_m"][i])
     assert np.isnan(data["value_costs"]).all()  # no map prior given
     env = CoverageEnv(_scenario(0, 0, SimParams()))  # state 0: the start of rollout 0, as the robots see it
-    windows, near = critic_inputs(env.maps, local_views(env), env.params.comm_radius_m)
+    windows, near = critic_inputs(critic_view(env.maps, local_views(env)), env.params)
     assert np.array_equal(data["x"][0], windows.astype(np.float16))
     assert np.allclose(stored_neighbours(data)[0], near, atol=1e-6)
 
@@ -53,8 +54,11 @@ def test_labels_have_their_shapes_and_are_the_copies_true_j(labels):
 def test_inputs_from_a_robots_window_and_neighbours():
     env = CoverageEnv(_scenario(0, 0, SimParams()))
     views = local_views(env)
-    x, near = critic_inputs(env.maps, views, env.params.comm_radius_m)
+    x, near = critic_inputs(critic_view(env.maps, views), env.params)
     assert x.shape == (32, 5, 16, 16) and x.dtype == np.float32
+    assert np.array_equal(x[:, :3], window_inputs(env.maps, views)[0])  # the map prior's input of the sensed map
+    with pytest.raises(ValueError, match="unexplored"):
+        critic_inputs(views, env.params)
     assert near.shape == (32, 16, 3) and np.array_equal(near[:, :, 2].sum(1), np.minimum(views.valid.sum(1), 16))
     assert (np.abs(near[:, :, :2]) <= 1.0).all()  # within r_c
     own = own_cell_fraction(views)
@@ -107,31 +111,53 @@ def test_scores_ranked_as_the_true_j_keep_all_of_oracles_gain(labels):
     assert r["gain_share_robot"] == pytest.approx(1.0)  # every robot keeps oracle's copy
 
 
-def test_the_critic_trains_saves_loads_and_selects(labels, tmp_path):
+def test_the_critic_trains_into_a_policy_file_and_its_rules_choose_with_it(labels, tmp_path):
+    from madp.controllers import make_controller
+    from madp.policies import SamplingSettings
+    from madp.policies.checkpoint import load_learned, load_policy, shipped_checkpoint
+
     d, _ = labels
     data, _ = load_labels(d / "labels.npz")
     torch.manual_seed(0)
-    net = train(data, np.array([0]), tmp_path / "critic.safetensors", epochs=2, batch=2, log=lambda _: None)
-    loaded = load_critic(tmp_path / "critic.safetensors")
+    out = tmp_path / "policy.safetensors"
+    net = train(data, np.array([0]), out, epochs=2, batch=2, log=lambda _: None)
+    loaded = load_critic(out)
     assert loaded.record["train_envs"] == [0] and loaded.record["states"] == 2
     x = torch.from_numpy(data["x"][0].astype(np.float32))
     near = torch.from_numpy(stored_neighbours(data)[0])
     with torch.no_grad():
         assert all(torch.equal(a, b) for a, b in zip(net(x, near), loaded(x, near)))
+    # the file is the shipped policy, the critic beside it
+    policy, shipped = load_policy(out)[0], load_policy(shipped_checkpoint("madp"))[0]
+    assert all(torch.equal(a, b) for a, b in zip(policy.state_dict().values(), shipped.state_dict().values()))
+    assert load_learned(shipped_checkpoint("madp"), "critic") is None
+    with pytest.raises(SettingError, match="carries none"):
+        make_controller("madp", sampling=SamplingSettings.of(select="critic", candidates=2))
+    assert isinstance(make_controller("madp", out, sampling=SamplingSettings.of(select="critic", candidates=2)).network,
+                      type(loaded))
     scores = predicted_scores(loaded, data)
     assert scores.shape == (4, 32, 3) and np.isfinite(scores).all()
+
+    # the rules: each robot's (or neighbourhood's) least predicted change of J from its sensed map
     env = CoverageEnv(_scenario(0, 1, SimParams()))
     views = local_views(env)
     cand = np.random.default_rng(0).normal(size=(3, 32, 2))
-    kept = critic_select(cand, views, critic_inputs(env.maps, views, 256.0), critic_predictor(loaded),
-                         env.neighbour_view()[0], env.params, "team")
-    assert any(np.array_equal(kept, c) for c in cand)  # team-wide: one whole copy
-    assert np.array_equal(critic_env_select(env, cand, loaded, "team"), kept)  # nobody is alone at the start
-    per_robot = critic_env_select(env, cand, loaded, "robot")
-    assert all(any(np.array_equal(per_robot[i], c[i]) for c in cand) for i in range(32))
+    per_robot = cand.transpose(1, 0, 2)
+    mass, offset = critic_predictor(loaded)(*critic_inputs(critic_view(env.maps, views), env.params))
+    own = copy_scores(mass, offset, displacements_m(views, per_robot, env.params))
+    held = critic_view(env.maps, views)
+    assert np.array_equal(held.weights, explore_prior(env, views).weights)  # a lone robot's step reads explore's map
+    assert np.array_equal(critic_costs(held, per_robot, env.params, critic_predictor(loaded)), own)
+    assert not lone_steps(views, env.params)[0].any()  # nobody is alone at the start
+    best = np.take_along_axis(per_robot, own.argmin(1)[:, None, None], 1)[:, 0]
+    assert np.array_equal(select_actions("critic", env, cand, loaded), best)
+    hood = joint_copy(own, env.neighbour_view()[0])
+    assert np.array_equal(select_actions("critic_hood", env, cand, loaded),
+                          np.take_along_axis(per_robot, hood[:, None, None], 1)[:, 0])
+    with pytest.raises(SettingError, match="critic"):
+        select_actions("critic", env, cand)
     with pytest.raises(SettingError, match="candidates_mps"):
-        critic_select(cand[:, :5], views, critic_inputs(env.maps, views, 256.0), critic_predictor(loaded),
-                      env.neighbour_view()[0], env.params)
+        critic_costs(held, per_robot[:5], env.params, critic_predictor(loaded))
 
 
 def test_bad_input_gets_one_line_errors(labels, tmp_path):
