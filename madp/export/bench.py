@@ -7,7 +7,8 @@ sampling (:class:`madp.policies.SamplingSettings`' defaults). A robot's step is 
 per control step once it has sensed: its token (perception graph, neighbourhood offset) and its act
 (inbox checks, encoder once, denoiser S times on K samples, the choice); its observation and map
 views are computed before timing (as the simulator gives them), except that under a ``value`` rule the
-map prior's graph runs on the robot's own window inside the timing, and under a ``_joint`` rule the
+map prior's graph runs on the robot's own window inside the timing (a ``critic`` rule's graph runs in its
+choice, timed), and under a ``_joint`` rule the
 sum of its neighbours' costs (their cost messages from an untimed pass) too. A policy distilled into
 one sampler step samples at S = 1. The PyTorch figure is
 :meth:`madp.policies.MADPPolicy.act_batch` on the whole swarm (observations and the choice included)
@@ -28,13 +29,13 @@ __all__ = ["bench_robot_runtime", "format_robot_runtime"]
 def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, candidates: int | None = None, repeats: int = 5,
                         seed: int = 0, select: str | None = None) -> dict:
     """Latency per robot per control step of the runtime (one thread) and of PyTorch (one thread), at the
-    evaluation default's sampling (``candidates``: another K; ``select``: another rule, the ``value``
-    rules with the checkpoint's map prior)."""
+    evaluation default's sampling (``candidates``: another K; ``select``: another rule, those that read a
+    learned network with the one the checkpoint carries)."""
     import torch
 
     from madp.models.bench import torch_threads
     from madp.policies import MADPPolicy, SamplingSettings, load, noise_generator, shipped_checkpoint
-    from madp.policies.checkpoint import load_map_prior
+    from madp.policies.checkpoint import load_learned
     from madp.robot.choice import local_views
     from madp.robot import RobotRuntime
     from madp.robot.prior import window_inputs
@@ -76,8 +77,8 @@ def bench_robot_runtime(checkpoint: str | None = None, num_robots: int = 32, can
 
         one_pass()
         robot = [one_pass() for _ in range(repeats)]
-    policy = MADPPolicy(model, "decentralized", sampling,
-                        network=load_map_prior(path) if RULES[sampling.select].prior else None)
+    needs = RULES[sampling.select].needs
+    policy = MADPPolicy(model, "decentralized", sampling, network=load_learned(path, needs) if needs else None)
     gen = noise_generator(seed)
     with torch_threads(1):
         policy.act_batch([env], [gen])

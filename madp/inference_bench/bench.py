@@ -261,12 +261,14 @@ def bench_infer_all(checkpoint: str | None = None, sweep_out: str | Path = "runs
         out["selection"] = bench_select(candidates, checkpoint, repeats, threads, device)
     if robot:
         from madp.export.bench import bench_robot_runtime
-        from madp.policies.checkpoint import load_map_prior
+        from madp.policies.checkpoint import load_learned
+        from madp.selection import NEEDS, rule_names
 
         out["robot_runtime"] = bench_robot_runtime(checkpoint, repeats=repeats)
-        if checkpoint is not None and load_map_prior(checkpoint) is not None:  # its value rules through the export too
-            out["robot_runtime_value"] = bench_robot_runtime(checkpoint, repeats=repeats, select="value")
-            out["robot_runtime_value_joint"] = bench_robot_runtime(checkpoint, repeats=repeats, select="value_joint")
+        for needs in NEEDS:  # the rules of each learned network the checkpoint carries, through the export too
+            if checkpoint is not None and load_learned(checkpoint, needs) is not None:
+                for name in rule_names(needs=needs):
+                    out[f"robot_runtime_{name}"] = bench_robot_runtime(checkpoint, repeats=repeats, select=name)
     if roofline:
         from .roofline import roofline as measure_roofline
 
@@ -319,9 +321,7 @@ def format_table(r: dict) -> list[str]:
         from madp.export.bench import format_robot_runtime
 
         lines += format_robot_runtime(r["robot_runtime"])
-        for key in ("robot_runtime_value", "robot_runtime_value_joint"):
-            if r.get(key):
-                lines += format_robot_runtime(r[key])
+        lines += [line for key, x in r.items() if key.startswith("robot_runtime_") for line in format_robot_runtime(x)]
     if r.get("roofline"):
         from .roofline import format_roofline
 

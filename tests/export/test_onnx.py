@@ -164,3 +164,16 @@ def test_robot_runtime_bench_runs_a_one_step_student_at_s_1_and_a_joint_rule_wit
     policy = Path(__file__).parents[2] / "docs/results/value-expectile-k8-2026-12-05/policy.safetensors"
     r = bench_robot_runtime(str(policy), num_robots=6, repeats=1, select="value_joint")
     assert (r["num_steps"], r["select"]) == (1, "value_joint") and r["onnxruntime_per_robot_s"] > 0
+
+
+def test_robot_runtime_bench_runs_a_critic_rule_through_the_critics_graph():
+    """A policy file carrying a critic (the kept one) is timed under ``critic_hood``: the critic's graph in
+    each robot's choice, the PyTorch side with the same critic (structure, not speed)."""
+    from pathlib import Path
+
+    from madp.export.bench import bench_robot_runtime
+
+    policy = Path(__file__).parents[2] / "docs/results/critic-2026-12-07/policy.safetensors"
+    r = bench_robot_runtime(str(policy), num_robots=6, repeats=1, select="critic_hood")
+    assert (r["candidates"], r["select"]) == (4, "critic_hood") and r["onnxruntime_per_robot_s"] > 0
+    assert r["torch_per_robot_s"] > 0
