@@ -91,6 +91,7 @@ def datagen(
     select: Optional[str] = typer.Option(None, help="With an MADP --policy: its rule to choose among its samples (as --sampling rule=), at the rule's default K."),
     max_steps: Optional[int] = typer.Option(None, min=1, help="Steps per episode at most (default 2100 for the expert, which stops when converged; exactly 600, the evaluation horizon, with --policy)."),
     launch: str = typer.Option("uniform", help="Where swarms start: uniform (anywhere) | packed (random boxes, bands and clusters; docs/guides/datasets.md)."),
+    dart_sigma_mps: float = typer.Option(0.0, "--dart-sigma", help="DART (expert rollouts, not with --policy): the swarm executes the expert's action plus Gaussian noise of this standard deviation (m/s) per robot and axis, clipped to the maximum speed, seeded by each episode's scenario; every sample keeps the expert's noiseless label. 0: off."),
     ray: Optional[str] = ray_option(),
 ) -> None:
     """Generate (U0, X, O) samples from clairvoyant-CVT rollouts (or a learned policy's, relabelled by the expert) as MCAP or Parquet shards."""
@@ -101,7 +102,7 @@ def datagen(
                        sigma_range_m=sigma, peak_range=peak, comm_radius_m=comm_radius_m)
     cfg = DatagenConfig(num_samples=n, seed=seed, format=format, samples_per_shard=samples_per_shard, params=params,
                         policy=learner_settings(policy, beta, sampling, select), max_steps=max_steps or (600 if policy else 2100),
-                        launch=launch)
+                        launch=launch, dart_sigma_mps=dart_sigma_mps)
     run_datagen(cfg, out, workers=workers, shards=parse_shards(shards), overwrite=overwrite, ray=ray)
 
 

@@ -1,5 +1,5 @@
-"""Run the clairvoyant expert (or a learner it relabels, :mod:`.relabel`) on one scenario and record
-samples (U0, X, O).
+"""Run the clairvoyant expert (with DART noise on what it executes, :func:`dart_driver`, or a learner
+it relabels, :mod:`.relabel`) on one scenario and record samples (U0, X, O).
 
 A shard's episodes run one after another, except with a MADP policy to relabel: then
 :func:`shard_episodes` runs them in batches of :data:`BATCH_EPISODES` in lockstep
@@ -18,6 +18,7 @@ from madp.data_schema import Episode
 from madp.sim import ClairvoyantCVT, CoverageEnv, Scenario
 from madp.sim.launch import draw_launch
 from madp.sim.rollout import Hook, act_alone, for_each_env, run
+from madp.sim.rules import clip_speed
 
 from .plan import DatagenConfig, ShardTask, episode_id, scenario_seed
 from .relabel import batches, learner_batch_driver, learner_driver
@@ -25,6 +26,8 @@ from .relabel import batches, learner_batch_driver, learner_driver
 #: Episodes of a relabelling shard that run in lockstep (:func:`record_batch`), on every machine
 #: alike: the rounding of the policy's batched actions, and so the bytes, depend on it.
 BATCH_EPISODES = 8
+#: The tag of an episode's DART noise stream (:func:`dart_driver`); its launch stream's is 0x1A.
+DART_STREAM = 0xDA27
 
 
 class EpisodeRecorder(Hook):
@@ -74,19 +77,43 @@ def record_episode(
     """One rollout, recording every ``record_every``-th step.
 
     The clairvoyant expert drives (or, with ``cfg.policy``, the learned policy drives and the expert
-    takes over each step with probability beta); every sample is labelled with the expert's action.
-    A step is recorded when t % record_every == 0, and once more at the end — the state where the
-    expert converged (all actions zero; expert rollouts only) or the last step t = max_steps —
-    unless that step was just recorded. Recording stops after ``max_samples`` samples. Each sample
-    holds the expert's action U0 at X_t, the positions X_t and the observations O_t (float16).
+    takes over each step with probability beta; or, with ``cfg.dart_sigma_mps``, the swarm executes
+    the expert's action plus noise: :func:`dart_driver`); every sample is labelled with the expert's
+    noiseless action. A step is recorded when t % record_every == 0, and once more at the end — the
+    state where the expert converged (all its actions zero; expert rollouts, DART's included) or the
+    last step t = max_steps — unless that step was just recorded. Under DART noise the expert's
+    labels are the convergence signal still: the noise keeps pushing robots off their goals, so such
+    an episode seldom converges and mostly runs to max_steps, recording states around the expert's
+    path up to its end. Recording stops after ``max_samples`` samples. Each sample holds the expert's
+    action U0 at X_t, the positions X_t and the observations O_t (float16).
     """
     env = CoverageEnv(scenario)
     expert = ClairvoyantCVT()
     driver = learner_driver(cfg.policy, scenario.seed) if cfg.policy else None
     recorder = EpisodeRecorder(expert, cfg, max_samples, driver is None, on_sample)
-    drive = None if driver is None else (lambda envs, u: [driver(envs[0], u[0])])
+    if driver is not None:
+        drive = lambda envs, u: [driver(envs[0], u[0])]  # noqa: E731
+    elif cfg.dart_sigma_mps:
+        drive = dart_driver(cfg.dart_sigma_mps, scenario.seed)
+    else:
+        drive = None
     run([env], act_alone(expert), [recorder], drive=drive)
     return recorder.episode(ep_id, scenario.seed, env.world_map_f32)
+
+
+def dart_driver(sigma_mps: float, seed: int) -> Callable[[list[CoverageEnv], np.ndarray], np.ndarray]:
+    """What a DART expert rollout executes (the ``drive`` of :func:`madp.sim.rollout.run`):
+    ``drive(envs, u [B, N, 2]) -> u + noise``, the noise N(0, sigma_mps²) m/s per robot and axis,
+    then every speed clipped to u_max (:func:`madp.sim.rules.clip_speed`). The noise is drawn at every
+    step, in one draw, from the episode's own stream ``default_rng([seed, DART_STREAM])`` of its
+    scenario seed ``seed``, so it depends on nothing else (not the worker, not a resumed run)."""
+    rng = np.random.default_rng([seed, DART_STREAM])
+
+    def drive(envs: list[CoverageEnv], u: np.ndarray) -> np.ndarray:
+        noisy_mps = u + sigma_mps * rng.standard_normal(np.shape(u))
+        return clip_speed(noisy_mps, envs[0].params.max_speed_mps)
+
+    return drive
 
 
 def episode_scenario(cfg: DatagenConfig, seed: int) -> Scenario:

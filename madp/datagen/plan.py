@@ -14,6 +14,7 @@ never meets a training scenario.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -51,6 +52,11 @@ class DatagenConfig:
     rule (absent: one sample per robot), and the dataset the policy was trained on (from the
     checkpoint's metadata). Episodes then run exactly ``max_steps`` steps (the expert's labels never
     end them), so late-episode states are recorded at the rate a rollout of that length visits them."""
+    dart_sigma_mps: float = 0.0
+    """DART noise (expert rollouts only; 0: off). Above 0, the swarm executes the expert's action plus
+    Gaussian noise N(0, σ²) m/s per robot and axis, clipped to u_max, drawn from a stream of the
+    episode's scenario seed (:func:`madp.datagen.episodes.dart_driver`); every sample keeps the
+    expert's noiseless label at the state the noisy swarm reached."""
 
     def __post_init__(self) -> None:
         if self.num_samples < 1:
@@ -71,6 +77,10 @@ class DatagenConfig:
             raise SettingError("launch", f"expected one of {', '.join(TRAINING_LAUNCHES)}, got {self.launch!r}")
         if self.policy and not 0.0 <= float(self.policy.get("beta", -1)) <= 1.0:
             raise SettingError("beta", f"expected a probability in [0, 1], got {self.policy.get('beta')}")
+        if not (math.isfinite(self.dart_sigma_mps) and self.dart_sigma_mps >= 0):
+            raise SettingError("dart_sigma_mps", f"expected a finite speed >= 0 m/s, got {self.dart_sigma_mps}")
+        if self.dart_sigma_mps and self.policy:
+            raise SettingError("dart_sigma_mps", "only for expert rollouts; with --policy the learner drives")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -79,6 +89,8 @@ class DatagenConfig:
             del d["policy"]
         if self.launch == "uniform":  # and uniform launches that of before --launch existed
             del d["launch"]
+        if not self.dart_sigma_mps:  # and noiseless ones that of before --dart-sigma existed
+            del d["dart_sigma_mps"]
         return d
 
     @classmethod
@@ -109,6 +121,8 @@ class DatagenConfig:
                 parts.append(f"--select {self.policy['select']}")
         elif self.max_steps != 2100:
             parts.append(f"--max-steps {self.max_steps}")
+        if self.dart_sigma_mps:
+            parts.append(f"--dart-sigma {self.dart_sigma_mps!r}")
         return " ".join(parts)
 
 
