@@ -106,8 +106,8 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     """Median latency of one decentralized MADP control step for one swarm of ``num_robots`` robots
     (a random uniform-launch scenario) with K candidates per robot at S sampler steps, for every
     (K, S) of ``candidates`` (S ``None``: the default S) and every rule of
-    :data:`madp.selection.RULES` that fits it (``none`` at K = 1; those that need a map prior when
-    the checkpoint carries one): the
+    :data:`madp.selection.RULES` that fits it (``none`` at K = 1; those that read a learned network
+    when the checkpoint carries it, :data:`madp.selection.NEEDS`): the
     policy's whole call (:meth:`MADPPolicy.act_batch`: observations, the batched sampling of K copies,
     the choice), one untimed call first. The model: ``checkpoint``, else the shipped one, else an
     untrained ``cpu`` preset; the default sampler."""
@@ -121,17 +121,20 @@ def bench_select(candidates: tuple[tuple[int, int | None], ...] = ((1, None), (4
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
     torch.manual_seed(seed)
     model = load(path, "madp", device)[0] if path else MADP(madp_config("cpu")).to(device)
-    from madp.policies.checkpoint import load_map_prior
+    from madp.policies.checkpoint import load_learned
+    from madp.selection import NEEDS
 
-    prior = load_map_prior(path, device) if path else None
+    carried = {needs: load_learned(path, needs, device) if path else None for needs in NEEDS}
     env = CoverageEnv(Scenario.random(seed, SimParams(num_robots=num_robots, num_features=32)))
     rows = []
     with torch_threads(threads):
         for k, steps in candidates:
             for select in rule_names(sees=("samples",)) if k == 1 else [
-                    s for s in rule_names(sees=("own map", "true map", "world")) if not RULES[s].prior or prior is not None]:
+                    s for s in rule_names(sees=("own map", "true map", "world"))
+                    if not RULES[s].needs or carried[RULES[s].needs] is not None]:
                 sampling = SamplingSettings.of(select=select, candidates=k, sampling_steps=steps)
-                policy = MADPPolicy(model, "decentralized", sampling, device=device, network=prior)
+                policy = MADPPolicy(model, "decentralized", sampling, device=device,
+                                    network=carried.get(RULES[select].needs))
                 gen = noise_generator(seed)
                 times = timed(lambda p=policy, g=gen: p.act_batch([env], [g]), 1, repeats, device)
                 rows.append({"candidates": k, "select": select, "num_robots": num_robots, "sampler": policy.sampler,

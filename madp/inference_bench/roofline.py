@@ -149,7 +149,7 @@ def observation_costs(env) -> tuple[int, int]:
 def selection_costs(env, select: str, candidates: int) -> tuple[int, int]:
     """(FLOPs, bytes) of rule ``select`` choosing among ``candidates`` K at ``env``'s state (module
     docstring): ``none`` and the rules that rank, robot by robot, on the mean of the explored blocks or on
-    the true map (not the learned prior's: its network is timed, not counted)."""
+    the true map (not those that read a learned network: it is timed, not counted)."""
     from madp.robot.choice import local_views
     from madp.selection import RULES, weigh
 
@@ -157,7 +157,7 @@ def selection_costs(env, select: str, candidates: int) -> tuple[int, int]:
     r = RULES.get(select)
     if r is not None and not r.ranks and not r.bound:
         return 0, 0
-    if r is None or not r.ranks or r.prior or r.joint:
+    if r is None or not r.ranks or r.needs or r.joint:
         raise SettingError("select", f"the roofline counts none and the rules that rank on the explored mean or the "
                                      f"true map, got {select!r}")
     views = local_views(env, true_map=r.sees == "true map")
