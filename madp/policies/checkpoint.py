@@ -26,13 +26,12 @@ from madp.selection import NEEDS
 from .parts import read_parts
 
 SHIPPED = {"madp": "madp-cpu.safetensors", "lpac": "lpac-cpu.safetensors"}
-#: Names of the weights of a policy file's map prior (the ``value`` rule's network) start with this;
-#: its config is the metadata key ``map_prior``.
-MAP_PRIOR_PREFIX = "map_prior."
 #: The learned networks a policy file may carry beside the policy, by what a selection rule needs
 #: (:data:`madp.selection.NEEDS`): each one's weight names start with its key plus ".", its config is
 #: the metadata key, how it was trained the key plus "_training".
 LEARNED = {name: n.key for name, n in NEEDS.items()}
+#: Names of the weights of a policy file's map prior (the ``value`` rules' network) start with this.
+MAP_PRIOR_PREFIX = f"{LEARNED['map prior']}."
 
 
 def shipped_checkpoint(kind: str) -> Path | None:
