@@ -21,7 +21,7 @@ import typer
 from madp.commands.main import ray_option
 from madp.controllers import DEFAULT, NAMES, parse_controllers
 from madp.sampling import sampling_help
-from madp.selection import select_help
+from madp.selection import NEEDS, RULES, select_help
 from madp.versions import print_version
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, rich_markup_mode=None,
@@ -258,6 +258,11 @@ def eval_cmd(
     if used != requested:
         skipped = ", ".join(c for c in requested if c not in used)
         typer.echo(f"note: no checkpoint for {skipped}; evaluating {', '.join(used)}")
+    for c in used:  # a policy file without the learned network its rule reads runs the rule's fallback
+        fitted = cfg.sampling_of(c).select
+        if fitted != cfg.sampling.select:
+            typer.echo(f"note: {c}'s policy file carries no {RULES[cfg.sampling.select].needs}; it chooses by "
+                       f"{fitted} ({NEEDS[RULES[cfg.sampling.select].needs].made_by} adds one)")
     for s in suites:
         run_suite(cfg, s, overwrite=overwrite)
         typer.echo((Path(cfg.out) / s / "summary.md").read_text())

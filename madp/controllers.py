@@ -234,7 +234,8 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
 
     ``checkpoint``: a learned controller's policy file (default: the shipped one); ``seed``: MADP's
     sampling noise; ``sampling``: MADP's :class:`madp.policies.SamplingSettings` (default: the
-    measured best sampler)."""
+    evaluation default); a rule whose learned network the file lacks runs its fallback
+    (:meth:`madp.policies.SamplingSettings.fitted`), one without is refused."""
     info = controller_info(name)
     if is_named(name) and checkpoint is None:
         raise SettingError("checkpoint", f"controller {name} is a named checkpoint; expected its path")
@@ -245,15 +246,17 @@ def make_controller(name: str, checkpoint: str | None = None, *, seed: int = 0, 
     model = load_model(info.kind, path, device)
     if not info.samples:
         return build(model, device)
+    from madp.policies import SamplingSettings
     from madp.selection import RULES
 
-    needs = RULES[sampling.select].needs if sampling is not None else ""
+    sampling = sampling or SamplingSettings()
+    needs = RULES[sampling.select].needs
     if needs:
         from madp.policies.checkpoint import load_learned
         from madp.selection import NEEDS
 
         network = load_learned(path, needs, device)
-        if network is None:
+        if network is None and not RULES[sampling.select].fallback:  # with one, the policy runs its fallback
             raise SettingError("select", f"{sampling.select} reads a learned {needs}, and {path} carries none "
                                          f"({NEEDS[needs].made_by} adds one)")
         return build(model, info.mode, sampling, seed=seed, device=device, network=network)

@@ -21,7 +21,7 @@ A new rule is one record in :data:`RULES` and its ``weigh`` or ``score`` functio
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Optional
+from typing import TYPE_CHECKING, Callable, Collection, Optional
 
 import numpy as np
 
@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # the records import nothing heavy: the command line lists th
     from madp.sim.robot_maps import RobotMaps
 
 __all__ = ["DEFAULT_CANDIDATES", "DEFAULT_RULE", "Learned", "MAX_CANDIDATES", "NEEDS", "RULES", "SEES", "Rule", "check_rule", "choose",
-           "default_candidates", "rule", "rule_names", "rules_table", "select_help", "weigh"]
+           "default_candidates", "rule", "rule_names", "rules_table", "runnable", "select_help", "weigh"]
 
 #: What a rule's choice reads: nothing but the samples, the robot's own map (what it sensed), the true map
 #: in each robot's window, or the whole world (the true J of each joint sample).
@@ -71,7 +71,9 @@ class Rule:
     candidate's cost (None: its local cell cost on the weighed map); ``needs``: the policy file's
     learned network it reads, a key of :data:`NEEDS` ("" for none); ``joint``: each robot keeps its
     action of the copy whose cost summed over its neighbourhood is least (neighbours send their K costs
-    in one more round of messages), not its own best."""
+    in one more round of messages), not its own best; ``fallback``: the rule that runs in its place, at
+    the same K, on a policy file that carries no ``needs`` network ("": none, such a file is refused;
+    :func:`runnable`)."""
 
     name: str
     help: str
@@ -80,6 +82,7 @@ class Rule:
     score: Optional[Score] = None
     needs: str = ""
     joint: bool = False
+    fallback: str = ""
 
     @property
     def prior(self) -> bool:
@@ -140,7 +143,8 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("value_explore_joint", "value_joint with explore's mean as a floor", "own map", _value_floor,
          needs="map prior", joint=True),
     Rule("critic", "each robot keeps the sample of least change of J its part causes, by the policy file's learned "
-                   "critic of its true cell's mass and centroid", "own map", _critic_view, _critic, needs="critic"),
+                   "critic of its true cell's mass and centroid", "own map", _critic_view, _critic, needs="critic",
+         fallback="explore"),
     Rule("critic_hood", "critic, one copy per neighbourhood: the neighbours' predicted changes summed", "own map",
          _critic_view, _critic, needs="critic", joint=True),
     Rule("oracle", "the joint sample of least true J after the step", "world"),
@@ -149,8 +153,9 @@ RULES: dict[str, Rule] = {r.name: r for r in (
     Rule("oracle_cell", "explore's choice on the true map", "true map"),
     Rule("oracle_joint", "value_joint's choice on the true map", "true map", joint=True),
 )}
-#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples).
-DEFAULT_RULE = "explore"
+#: The rule MADP uses unless told otherwise (README, Choosing among MADP's samples); on a policy file
+#: without the network it needs, its ``fallback`` runs (:func:`runnable`).
+DEFAULT_RULE = "critic"
 #: K for a rule named without a number of candidates.
 DEFAULT_CANDIDATES = 4
 #: The most candidates per robot: K samples cost K denoiser passes and K × N actions per step.
@@ -170,6 +175,14 @@ def rule(name: str) -> Rule:
     if name not in RULES:
         raise SettingError("select", f"expected one of {', '.join(RULES)}, got {name!r}")
     return RULES[name]
+
+
+def runnable(name: str, carried: Collection[str]) -> str:
+    """The rule that runs for rule ``name`` on a policy file carrying the learned networks ``carried``
+    (keys of :data:`NEEDS`): ``name``, or its ``fallback`` when the file lacks the network it needs and
+    it has one (a rule without a fallback stays ``name``, and is refused where its network is read)."""
+    r = rule(name)
+    return r.fallback if r.needs and r.fallback and r.needs not in carried else name
 
 
 def default_candidates(name: str) -> int:
@@ -233,7 +246,13 @@ def select_help() -> str:
     names = " | ".join(r.name + (" (an upper bound: reads the " + r.sees + ")" if r.bound else "") for r in RULES.values())
     return (f"MADP: the rule that keeps one of --candidates K samples per robot (default: {DEFAULT_RULE}; none: "
             f"K = 1): {names}. What each keeps: docs/concepts/sampling.md; those that read a learned "
-            f"{' or '.join(NEEDS)} need a policy file carrying it ({', '.join(n.made_by for n in NEEDS.values())}).")
+            f"{' or '.join(NEEDS)} need a policy file carrying it ({', '.join(n.made_by for n in NEEDS.values())}); "
+            f"{fallbacks()}.")
+
+
+def fallbacks() -> str:
+    """One clause per rule that falls back on a policy file without its network, from the records."""
+    return "; ".join(f"{r.name} runs {r.fallback} on a file without a {r.needs}" for r in RULES.values() if r.fallback)
 
 
 def rules_table() -> str:
@@ -241,6 +260,7 @@ def rules_table() -> str:
     rows = ["| rule | what it keeps | reads | needs | kind |", "|---|---|---|---|---|"]
     for r in RULES.values():
         needs = f"a policy file with a {r.needs} (`{NEEDS[r.needs].made_by}`)" if r.needs else "—"
+        needs += f"; `{r.fallback}` runs on one without" if r.fallback else ""
         kind = "upper bound, not a controller" if r.bound else "controller" + (", joint" if r.joint else "")
         rows.append(f"| `{r.name}` | {r.help} | {r.sees} | {needs} | {kind} |")
     return "\n".join(rows)

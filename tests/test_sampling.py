@@ -20,9 +20,9 @@ SAMPLING_COMMANDS = (("eval",), ("rollout",), ("datagen",), ("export",), ("swarm
 
 
 def test_the_spec_parses_into_the_settings_and_back():
-    spec = "sampler=dpm++,steps=3,k=4,rule=explore,frame=d4,precision=fp32"
+    spec = "sampler=dpm++,steps=3,k=4,rule=critic,frame=d4,precision=fp32"
     given = parse_sampling(spec)
-    assert given == {"sampler": "dpm++", "sampling_steps": 3, "candidates": 4, "select": "explore", "frame": "d4",
+    assert given == {"sampler": "dpm++", "sampling_steps": 3, "candidates": 4, "select": "critic", "frame": "d4",
                      "precision": "fp32"}
     assert SamplingSettings.of(**given) == SamplingSettings()  # the defaults, spelled out
     assert spec_text(SamplingSettings().as_dict()) == spec + ",eta=0.0,fixed_noise=false"

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from madp.selection import DEFAULT_RULE, RULES, SEES, check_rule, rule_names, rules_table, select_help
+from madp.selection import DEFAULT_RULE, NEEDS, RULES, SEES, check_rule, rule_names, rules_table, select_help
 
 ROOT = Path(__file__).resolve().parents[1]
 MADP = ROOT / "madp"
@@ -90,5 +90,20 @@ def test_rule_names_are_listed_only_in_the_records(path):
         if isinstance(node, (ast.Tuple, ast.List, ast.Set, ast.Dict)) and items:
             named = {x.value for x in items if isinstance(x, ast.Constant) and x.value in RULES}
             assert len(named) < 2, f"{path.relative_to(ROOT)}:{node.lineno} lists rules {sorted(named)}"
-        if isinstance(node, ast.Constant) and node.value == DEFAULT_RULE:
+        if _names_the_default_rule(node):
             pytest.fail(f"{path.relative_to(ROOT)}:{node.lineno} names the rule {DEFAULT_RULE!r}: use DEFAULT_RULE or a record")
+
+
+def _names_the_default_rule(node: ast.AST) -> bool:
+    """The default rule's name as a string, or, where that name is also a learned network's (a key of
+    NEEDS or its weights' key), as a rule: a ``select=``/``rule=`` keyword or a comparison with
+    something named select or rule."""
+    is_default = lambda n: isinstance(n, ast.Constant) and n.value == DEFAULT_RULE  # noqa: E731
+    if DEFAULT_RULE not in NEEDS and DEFAULT_RULE not in {n.key for n in NEEDS.values()}:
+        return is_default(node)
+    if isinstance(node, ast.keyword):
+        return node.arg in ("select", "rule") and is_default(node.value)
+    if isinstance(node, ast.Compare):
+        text = ast.unparse(node)
+        return any(is_default(n) for n in (node.left, *node.comparators)) and ("select" in text or "rule" in text)
+    return False

@@ -1,7 +1,9 @@
 """``madp critic …``: the learned critic of MADP's joint copies (:mod:`madp.training.critic`,
 :mod:`madp.training.critic_fit`): ``collect`` its labels from the deployed policy's rollouts, ``train``
 it with some rollouts held out, ``rank`` how it and the ``explore`` and ``value`` rules rank the
-copies of the held-out states, ``export`` it as an ONNX graph for the robot."""
+copies of the held-out states, ``attach`` a trained critic to another policy file (a fine-tuned policy,
+say: the critic reads what robots know and the copies' moves, not the policy's weights), ``export`` it
+as an ONNX graph for the robot."""
 
 from __future__ import annotations
 
@@ -81,6 +83,31 @@ def critic_rank_cmd(
         typer.echo(f"{name:12s} spearman {r['spearman_team']:+.3f}  gain share robot {r['gain_share_robot']:+.2f} "
                    f"neighbourhood {r['gain_share_neighbourhood']:+.2f} team {r['gain_share_team']:+.2f}")
     typer.echo(f"-> {out}")
+
+
+@critic_app.command("attach")
+def critic_attach_cmd(
+    critic: Path = typer.Option(..., help="Policy file that carries the critic (madp critic train)."),
+    policy: Path = typer.Option(..., help="MADP policy file to carry it."),
+    out: Path = typer.Option(..., help="The policy file to write (.safetensors): --policy carrying the critic."),
+    overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
+) -> None:
+    """Copy the critic that --critic carries onto --policy: the policy's weights and metadata, the critic's
+    weights and how it was trained, plus where it came from."""
+    from madp.errors import SettingError
+    from madp.io.checksum import sha256_file
+    from madp.models.critic import load_critic
+    from madp.policies.checkpoint import attach, load
+
+    if out.suffix != ".safetensors":
+        raise SettingError("out", f"expected a .safetensors file, got {out}")
+    if out.exists() and not overwrite:
+        raise SettingError("out", f"{out} exists; pass --overwrite to replace it")
+    load(policy, "madp")  # a MADP policy file: one-line errors otherwise
+    net = load_critic(critic)
+    attach(policy, out, "critic", net, net.config.to_dict(),
+           {**net.record, "attached_from": {"path": str(critic), "sha256": sha256_file(critic)}})
+    typer.echo(f"{policy} with the critic of {critic} -> {out}")
 
 
 @critic_app.command("export")

@@ -118,6 +118,7 @@ def run_rollout(scenario: Path, controller: str, checkpoint: Path | None, seed: 
     result = run(env, ctrl, steps, frames + ([rec] if rec else []))
     doc = result.to_json(controller)
     if controller_info(controller).samples:  # how it sampled, and where its starting noise came from
+        sampling = ctrl.sampling  # as it ran: the rule's fallback on a file without the network it reads
         doc["sampling"] = {"spec": spec_text(sampling.as_dict()), **sampling.as_dict(), "runtime": runtime,
                            "noise": "robot" if runtime == "onnx" else "torch"}
     if env.network is not None:  # the network's settings and the bytes each robot put on the air per step

@@ -112,6 +112,16 @@ class EvalConfig:
         info = controller_info(controller)
         return getattr(self, info.kind) if info.learned else None
 
+    def sampling_of(self, controller: str) -> SamplingSettings:
+        """The sampling ``controller`` runs: this evaluation's, fitted to its policy file (the rule's
+        fallback where the file lacks the network the rule reads: :meth:`SamplingSettings.fitted`)."""
+        if not controller_info(controller).samples:
+            return self.sampling
+        from madp.controllers import resolve_checkpoint
+        from madp.policies.checkpoint import carried
+
+        return self.sampling.fitted(carried(resolve_checkpoint(controller, self.checkpoint(controller))))
+
     def controller(self, name: str, spec: EnvSpec):
         """Controller ``name`` as this suite runs it (:func:`madp.controllers.make_controller`), MADP's
         noise seeded by the environment's seed; with ``runtime="onnx"`` decentralized MADP runs robot by robot
@@ -123,7 +133,7 @@ class EvalConfig:
             from madp.controllers import resolve_checkpoint
             from madp.export.swarm import OnnxMADPPolicy
 
-            return OnnxMADPPolicy(resolve_checkpoint(name, self.checkpoint(name)), self.sampling, seed=spec.seed)
+            return OnnxMADPPolicy(resolve_checkpoint(name, self.checkpoint(name)), self.sampling_of(name), seed=spec.seed)
         return make_controller(name, self.checkpoint(name), seed=spec.seed, sampling=self.sampling, device=self.device)
 
 
@@ -179,7 +189,7 @@ def run_job(cfg: EvalConfig, spec: EnvSpec, controller: str, suite_dir: Path, re
                            positions.positions_m[0], actions.actions_mps[0], controller, env.params.dt_s,
                            samples_mps=samples.samples_mps if info.samples else None, every=cfg.record_every,
                            title=f"{spec.suite}/{spec.group} #{spec.index} ({scenario.name})",
-                           extra_metadata={**info.settings(cfg.sampling), **_network_metadata(spec)},
+                           extra_metadata={**info.settings(cfg.sampling_of(controller)), **_network_metadata(spec)},
                            links=links.links if spec.network is not None else None)
     if video:
         frames.write()
@@ -468,7 +478,7 @@ def write_tables(envs: list[EnvSpec], cfg: EvalConfig, suite_dir: Path) -> None:
                                "mean_step_ms", "num_robots", "num_features", "sigma_lo", "sigma_hi", "city", "launch",
                                "sampler", "sampling_steps", "fixed_noise", "frame", "select", "candidates",
                                "precision", "noise", "bytes_per_robot_step")}
-    sampling = {c: controller_info(c).settings(cfg.sampling) for c in cfg.controllers}
+    sampling = {c: controller_info(c).settings(cfg.sampling_of(c)) for c in cfg.controllers}
     for e in envs:
         for c in cfg.controllers:
             d = np.load(job_path(suite_dir, e, c))

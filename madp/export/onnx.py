@@ -36,7 +36,7 @@ from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path, write_json_atomic
 from madp.io.lock import locked_dir
 from madp.io.owned import foreign_files
-from madp.policies.checkpoint import load_learned, load_policy
+from madp.policies.checkpoint import carried, load_learned, load_policy
 from madp.policies.madp import SamplingSettings, check_sampling_steps
 from madp.policies.select import GRID_M
 from madp.selection import NEEDS, RULES
@@ -210,17 +210,19 @@ def export_policy(policy: str | Path, out_dir: str | Path, sampling: SamplingSet
     One-line errors for a file that is not a MADP checkpoint, for one with non-finite weights and for
     settings the runtime does not run (a sampler other than DPM-Solver++, ``fixed_noise``, the
     ``oracle`` rules that read the world), and for a rule that reads a learned network (a map prior or a
-    critic, :attr:`madp.selection.Rule.needs`) with a policy file that carries none; that network's graph
-    is exported too."""
+    critic, :attr:`madp.selection.Rule.needs`) with a policy file that carries none, unless the rule has a
+    fallback, which the JSON then names (the default ``critic`` on a file without one: ``explore``); that
+    network's graph is exported too."""
     sampling = sampling or SamplingSettings()
     if sampling.sampler != "dpm++":
         raise SettingError("sampler", f"the robot runtime runs DPM-Solver++(2M) (dpm++), got {sampling.sampler}")
     if sampling.fixed_noise:
         raise SettingError("fixed_noise", "the robot runtime draws fresh noise every step")
-    rule = RULES[sampling.select]
-    if rule.bound:
+    if RULES[sampling.select].bound:
         raise SettingError("select", f"{sampling.select} reads the whole world: not a rule a robot can run")
     policy = Path(policy)
+    sampling = sampling.fitted(carried(policy))  # a rule whose network the file lacks: its fallback, if any
+    rule = RULES[sampling.select]
     model, meta = load_policy(policy)
     learned = load_learned(policy, rule.needs) if rule.needs else None
     if rule.needs and learned is None:

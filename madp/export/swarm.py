@@ -24,6 +24,7 @@ import atexit
 import hashlib
 import shutil
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +75,7 @@ class OnnxMADPPolicy:
             raise SettingError("noise", f"expected one of {', '.join(NOISES)}, got {noise!r}")
         self.noise = noise
         self.runtime = RobotRuntime(exported(policy, self.sampling))
+        self.sampling = replace(self.sampling, select=self.runtime.rule)  # the export's (a rule's fallback: fitted)
         self.candidates = self.sampling.candidates
         self.sent: list = []
         self.reset(seed)

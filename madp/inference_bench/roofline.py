@@ -344,7 +344,8 @@ def add_rates(state: dict, peaks: dict) -> None:
 
 def roofline(checkpoint: str | None = None, after_steps: int = 300, repeats: int = 5, threads: int | None = 2,
              device: str = "cpu", index: int = 0, square: int | None = None) -> dict:
-    """The roofline of the evaluation default's control step (module docstring) at both states of
+    """The roofline of the evaluation default's control step (module docstring; a default rule that reads
+    a learned network is counted as its fallback, ``explore`` for ``critic``) at both states of
     :func:`roofline_states`; the peaks are measured before and after the timing (the best of the two).
     The model: ``checkpoint``, else the shipped one, else an untrained ``cpu`` preset (FLOPs, bytes and
     times do not depend on the weights)."""
@@ -354,7 +355,7 @@ def roofline(checkpoint: str | None = None, after_steps: int = 300, repeats: int
     path = checkpoint or (str(shipped_checkpoint("madp")) if shipped_checkpoint("madp") else None)
     torch.manual_seed(0)
     model = (load(path, "madp", device)[0] if path else MADP(madp_config("cpu")).to(device)).eval()
-    sampling = SamplingSettings()
+    sampling = SamplingSettings().fitted(())  # a learned network's part is timed, not counted: its fallback's
     load_before = _load()
     devices = ["cpu"] + ([device] if torch.device(device).type != "cpu" else [])
     with torch_threads(threads):

@@ -115,10 +115,29 @@ def load_map_prior(path: str | Path, device: str | torch.device = "cpu"):
     return net.to(device).eval()
 
 
+def carried(path: str | Path) -> tuple[str, ...]:
+    """The learned networks (keys of :data:`LEARNED`) the policy file ``path`` carries beside its policy,
+    by its metadata; one-line errors for a missing or unreadable file."""
+    joined = read_parts(path)  # a checkpoint split into float16 parts (index or a part), else None
+    if joined is not None:
+        metadata = joined[0]
+    else:
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{path}: checkpoint not found")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                metadata = dict(f.metadata() or {})
+        except Exception as e:  # safetensors raises its own error types for truncated/garbled files
+            raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+    return tuple(name for name, key in LEARNED.items() if key in metadata)
+
+
 def load_learned(path: str | Path, needs: str, device: str | torch.device = "cpu"):
     """The learned network ``needs`` (a key of :data:`LEARNED`) that the policy file ``path`` carries:
     its map prior (:func:`load_map_prior`) or its critic (:func:`madp.models.critic.load_critic`), in eval
     mode; None when it carries none."""
+    if needs not in carried(path):
+        return None
     if needs == "map prior":
         return load_map_prior(path, device)
     from madp.models.critic import load_critic

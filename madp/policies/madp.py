@@ -15,8 +15,8 @@ frame is this step's (with ``frame="d4"``, 1 step in 8 on average).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING
+from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING, Collection
 
 import numpy as np
 import torch
@@ -26,7 +26,7 @@ from madp.models.samplers import DEFAULT_SAMPLER, DEFAULT_SAMPLING_STEPS, check_
 from madp.models.symmetry import inverse_actions, transform_points, transform_state
 from madp.models.attention_mask import closer_than_squared
 from madp.robot.frame import frame_element  # torch-free: the robot runtime computes it too
-from madp.selection import DEFAULT_RULE, check_rule, default_candidates
+from madp.selection import DEFAULT_RULE, RULES, check_rule, default_candidates, runnable
 from madp.sim.rules import clip_speed
 
 from .select import select_actions
@@ -114,6 +114,14 @@ class SamplingSettings:
         return cls(sampler or DEFAULT_SAMPLER, sampling_steps or DEFAULT_SAMPLING_STEPS, eta, fixed_noise, frame,
                    select, default_candidates(select) if candidates is None else candidates, precision)
 
+    def fitted(self, carried: Collection[str]) -> "SamplingSettings":
+        """These settings on a policy file that carries the learned networks ``carried`` (keys of
+        :data:`madp.selection.NEEDS`): the rule's fallback in its place when the file lacks the network
+        it needs (:func:`madp.selection.runnable`; the default ``critic`` runs ``explore`` on a file
+        without a critic), else unchanged."""
+        select = runnable(self.select, carried)
+        return self if select == self.select else replace(self, select=select)
+
     def as_dict(self) -> dict:
         """What names the sampling in tables, recordings and a suite's config."""
         return asdict(self)
@@ -135,7 +143,8 @@ class MADPPolicy:
                  device: str = "cpu", network=None):
         if mode not in ("decentralized", "centralized"):
             raise SettingError("mode", f"expected decentralized or centralized, got {mode!r}")
-        self.sampling = sampling = sampling or SamplingSettings()
+        sampling = sampling or SamplingSettings()
+        self.sampling = sampling = sampling.fitted(() if network is None else (RULES[sampling.select].needs,))
         check_sampling_steps(model, sampling.sampling_steps)
         model = model.with_bf16_linears() if sampling.precision == "bf16" else model
         self.model, self.mode, self.num_steps, self.eta = model.eval(), mode, int(sampling.sampling_steps), float(sampling.eta)

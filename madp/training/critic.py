@@ -1,8 +1,8 @@
 """The critic of MADP's joint copies (:mod:`madp.robot.critic`, :mod:`madp.models.critic`): its labels.
 
-:func:`collect` (``madp critic collect``): the deployed policy (MADP at the evaluation default, the
-``explore`` rule at K = 4) drives swarms on dataset scenarios (seeds below 2⁶², never an evaluation
-suite's; uniform and packed launches in turn, as ``madp value collect``). Every ``every`` steps, from
+:func:`collect` (``madp critic collect``): the deployed policy (MADP at the evaluation default, K = 4:
+the ``critic`` rule on a policy file carrying a critic, else ``explore``; the file records which)
+drives swarms on dataset scenarios (seeds below 2⁶², never an evaluation suite's; uniform and packed launches in turn, as ``madp value collect``). Every ``every`` steps, from
 step 0, each environment's state gets ``copies`` K extra joint copies, drawn by the same policy with
 noise of their own (the rollout's noise is left alone), and the file keeps, per state:
 
@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from madp.selection import DEFAULT_CANDIDATES, DEFAULT_RULE
 from madp.errors import InputError, SettingError
 from madp.io.atomic import atomic_path
 from madp.io.npz import load_npz
@@ -150,7 +149,7 @@ def collect(out: Path, num_envs: int, every: int = 25, steps: int = 600, copies:
                 env_ids.append(idx[b]), step_ids.append(t)
             bar.advance(task, len(idx))
     meta = {"format": FORMAT, "num_envs": num_envs, "first": first, "every": every, "steps": steps, "copies": copies,
-            "seed": seed, "policy": str(policy or "shipped"), "prior": prior, "select": DEFAULT_RULE, "candidates": DEFAULT_CANDIDATES,
+            "seed": seed, "policy": str(policy or "shipped"), "prior": prior, "select": ctrl.sampling.select, "candidates": ctrl.sampling.candidates,
             "states": len(env_ids), "seconds": round(time.perf_counter() - t0, 1)}
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out, ".npz") as tmp:

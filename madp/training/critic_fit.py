@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from madp.selection import DEFAULT_RULE
 from madp.errors import SettingError
 from madp.models.critic import Critic, CriticConfig
 from madp.models.symmetry import _vectors, transform_image
@@ -238,7 +237,8 @@ def rank_study(paths, critic_path: Path) -> dict:
         raise SettingError("data", f"every environment of the labels was one {critic_path} was trained on")
     data = with_derived({k: v[held] for k, v in data.items()})
     prefixes = {int(e): world_prefix(meta["seed"], int(e)) for e in np.unique(data["env"])}
-    rules = {"critic": predicted_scores(net, data), DEFAULT_RULE: data["explore_costs"]}
+    rules = {"critic": predicted_scores(net, data)}
+    rules["explore"] = data["explore_costs"]
     if np.isfinite(data["value_costs"]).all():
         rules["value"] = data["value_costs"]
     rules["true_cell"] = true_cell_scores(data)

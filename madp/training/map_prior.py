@@ -1,8 +1,9 @@
 """The ``value`` rule's map prior (:mod:`madp.models.map_prior`): its training data and its training.
 
 * :func:`collect` (``madp value collect``): the deployed policy (MADP at the evaluation default, the
-  ``explore`` rule) drives swarms on dataset scenarios (seeds below 2⁶², never an evaluation suite's;
-  uniform and packed launches in turn). Every ``every`` steps each robot's window gives one example:
+  ``critic`` rule on a policy file carrying a critic, else ``explore``; the file records which) drives
+  swarms on dataset scenarios (seeds below 2⁶², never an evaluation suite's; uniform and packed
+  launches in turn). Every ``every`` steps each robot's window gives one example:
   the prior's input (:func:`madp.robot.prior.prior_inputs`, from the robot's own map) and its
   target, the true importance of the same window (:func:`madp.models.map_prior.prior_targets`). One
   ``.npz`` file, written under a temporary name and renamed, with the settings that made it.
@@ -129,7 +130,7 @@ def collect(out: Path, num_envs: int, every: int = 20, steps: int = 600, seed: i
             for _, b, (x, y, w) in hook.parts:
                 xs.append(x), ys.append(y), ws.append(w), env_ids.append(np.full(len(x), idx[b], np.int32))
     meta = {"format": FORMAT, "num_envs": num_envs, "every": every, "steps": steps, "seed": seed,
-            "policy": str(policy or "shipped"), "launches": list(TRAINING_LAUNCHES),
+            "policy": str(policy or "shipped"), "select": ctrl.sampling.select, "launches": list(TRAINING_LAUNCHES),
             "examples": int(sum(len(x) for x in xs)), "seconds": round(time.perf_counter() - t0, 1)}
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out, ".npz") as tmp:

@@ -40,6 +40,7 @@ def _tiny_policy(monkeypatch, tmp_path, poison: bool = False) -> None:
         with torch.no_grad():
             next(model.parameters()).view(-1)[0] = float("nan")
     monkeypatch.setattr(export_onnx, "load_policy", lambda path: (model, {"kind": "madp"}))
+    monkeypatch.setattr(export_onnx, "carried", lambda path: ())  # no learned network: the default's fallback
     monkeypatch.chdir(tmp_path)
     (tmp_path / "p.safetensors").write_bytes(b"a policy file")
 

@@ -19,5 +19,5 @@ def export_tiny(out: Path, sampling: SamplingSettings | None = None) -> MADP:
     model = MADP(tiny_madp_config()).eval()
     model.set_action_stats(torch.tensor([0.1, -0.2]), torch.tensor([2.0, 1.5]))
     out.mkdir(parents=True, exist_ok=True)
-    write_runtime(out, runtime_spec(model, {}, "0" * 64, sampling or SamplingSettings(), SimParams()), export_graphs(model, out))
+    write_runtime(out, runtime_spec(model, {}, "0" * 64, (sampling or SamplingSettings()).fitted(()), SimParams()), export_graphs(model, out))
     return model

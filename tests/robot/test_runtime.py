@@ -69,7 +69,7 @@ def test_learned_rules_through_the_export_match_the_pytorch_policy(tmp_path, sel
     torch_policy = MADPPolicy(load(policy, "madp")[0], sampling=sampling, seed=3, network=load_learned(policy, needs))
     # the rule it is checked against: explore, and for a _joint rule its per-robot rule (no cost round)
     alone = {"value_joint": "value", "value_explore_joint": "value_explore", "critic_hood": "critic"}
-    other = SamplingSettings.of(select=alone[select]) if RULES[select].joint else SamplingSettings()
+    other = SamplingSettings.of(select=alone[select]) if RULES[select].joint else SamplingSettings.of(select="explore")
     explore = MADPPolicy(load(policy, "madp")[0], sampling=other, seed=3, network=load_learned(policy, needs))
     onnx_policy = OnnxMADPPolicy(policy, sampling, seed=3)
     assert onnx_policy.runtime.rule == select

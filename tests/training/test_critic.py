@@ -22,6 +22,21 @@ from madp.training.map_prior import _scenario
 from tests.test_reliability_errors import cli
 
 
+def without_learned(policy, out):
+    """``policy``'s policy alone, written to ``out``: the tensors and metadata of its learned networks left out."""
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    from madp.policies.checkpoint import LEARNED
+
+    keys = tuple(LEARNED.values())
+    with safe_open(str(policy), framework="pt") as f:
+        tensors = {k: f.get_tensor(k) for k in f.keys() if not k.startswith(tuple(f"{key}." for key in keys))}
+        metadata = {k: v for k, v in (f.metadata() or {}).items() if k not in keys and k.removesuffix("_training") not in keys}
+    save_file(tensors, str(out), metadata=metadata)
+    return out
+
+
 @pytest.fixture(scope="module")
 def labels(tmp_path_factory):
     d = tmp_path_factory.mktemp("critic")
@@ -114,7 +129,8 @@ def test_scores_ranked_as_the_true_j_keep_all_of_oracles_gain(labels):
 def test_the_critic_trains_into_a_policy_file_and_its_rules_choose_with_it(labels, tmp_path):
     from madp.controllers import make_controller
     from madp.policies import SamplingSettings
-    from madp.policies.checkpoint import load_learned, load_policy, shipped_checkpoint
+    from madp.policies.checkpoint import carried, load_learned, load_policy, shipped_checkpoint
+    from madp.selection import RULES
 
     d, _ = labels
     data, _ = load_labels(d / "labels.npz")
@@ -127,14 +143,29 @@ def test_the_critic_trains_into_a_policy_file_and_its_rules_choose_with_it(label
     near = torch.from_numpy(stored_neighbours(data)[0])
     with torch.no_grad():
         assert all(torch.equal(a, b) for a, b in zip(net(x, near), loaded(x, near)))
-    # the file is the shipped policy, the critic beside it
+    # the file is the shipped policy, the critic beside it (in place of the one the shipped file carries)
     policy, shipped = load_policy(out)[0], load_policy(shipped_checkpoint("madp"))[0]
     assert all(torch.equal(a, b) for a, b in zip(policy.state_dict().values(), shipped.state_dict().values()))
-    assert load_learned(shipped_checkpoint("madp"), "critic") is None
+    assert carried(shipped_checkpoint("madp")) == carried(out) == ("critic",)
+    # a policy file without a critic (a fine-tuned policy, say): critic, the default, runs its fallback,
+    # explore; critic_hood, which has none, is refused
+    plain = without_learned(out, tmp_path / "plain.safetensors")
+    assert carried(plain) == () and load_learned(plain, "critic") is None
+    fallback = make_controller("madp", str(plain), sampling=SamplingSettings.of(select="critic", candidates=2))
+    assert fallback.network is None and fallback.select == RULES["critic"].fallback == "explore"
     with pytest.raises(SettingError, match="carries none"):
-        make_controller("madp", sampling=SamplingSettings.of(select="critic", candidates=2))
+        make_controller("madp", str(plain), sampling=SamplingSettings.of(select="critic_hood", candidates=2))
     assert isinstance(make_controller("madp", out, sampling=SamplingSettings.of(select="critic", candidates=2)).network,
                       type(loaded))
+    # madp critic attach: the critic onto the plain file again, weights equal, where it came from recorded
+    code, err = cli("critic", "attach", "--critic", out, "--policy", plain, "--out", tmp_path / "again.safetensors")
+    assert code == 0, err
+    again = load_critic(tmp_path / "again.safetensors")
+    assert all(torch.equal(a, b) for a, b in zip(again.state_dict().values(), loaded.state_dict().values()))
+    assert again.record["attached_from"]["path"] == str(out) and again.record["train_envs"] == [0]
+    code, err = cli("critic", "attach", "--critic", plain, "--policy", plain, "--out", tmp_path / "none.safetensors")
+    assert code != 0 and "not a critic file" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "none.safetensors").exists()
     scores = predicted_scores(loaded, data)
     assert scores.shape == (4, 32, 3) and np.isfinite(scores).all()
 
