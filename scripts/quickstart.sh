@@ -21,7 +21,8 @@ What you are looking at (runs/quickstart-eval/uniform/: summary.md above, cost_u
   MADP, LPAC-K3: the checkpoints shipped with madp, trained for hours (their figures on the whole uniform
     suite, 50 environments x 600 steps: docs/reports/results.md).
   MADP:quickstart, LPAC-K3:quickstart: trained for 30 steps just now; LPAC-K3 barely moves the swarm, and
-    MADP's progress comes mostly from the default choice among its 4 samples (--select explore).
+    MADP's progress comes mostly from the choice among its 4 samples: its file carries no critic, so it
+    chooses by explore, the default's fallback (the note above says so).
   Clairvoyant: the expert that sees the whole map (an oracle, the floor); DCVT: the classical decentralized baseline.
   2 environments x 100 steps is a smoke test, not a measurement: the README's numbers are 50 x 600.
 EOF

@@ -34,7 +34,7 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, sampling: str
     robot, ``none``): its rule with its K and S (recorded only when it is not ``none``) and its noise
     source (``torch``, one generator per episode seeded by its scenario), and the policy's parent
     dataset; ``{}`` (the expert drives) without a policy, where a ``beta`` or a sampling is refused."""
-    from madp.policies.checkpoint import load_policy
+    from madp.policies.checkpoint import carried, load_policy
     from madp.sampling import merge_sampling
 
     given = merge_sampling(sampling, select=select)
@@ -46,8 +46,9 @@ def learner_settings(policy: str | Path | None, beta: float = 0.0, sampling: str
         return {}
     from madp.policies.madp import SamplingSettings
 
-    chosen = SamplingSettings.of(**{"select": "none", **given})  # checked; the rule's K and S as they are today
     policy = Path(policy)
+    # checked; the rule's K and S as they are today, and its fallback where the file lacks its network
+    chosen = SamplingSettings.of(**{"select": "none", **given}).fitted(carried(policy))
     _, meta = load_policy(policy)
     if chosen.select != "none" and meta["kind"] != "madp":
         raise SettingError("select", f"only MADP chooses among samples; {policy} is {meta['kind']}")

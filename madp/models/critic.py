@@ -51,7 +51,8 @@ class CriticConfig:
 
 class Critic(nn.Module):
     """``(windows [R, 5, H, H], neighbours [R, M, 3])`` -> ``(mass [R] ≥ 0, offset [R, 2])`` in the units
-    of the module docstring."""
+    of the module docstring. H is ``config.cells`` for the simulator's default window; another H (a
+    smaller world's window) runs too, outside what the critic was trained on."""
 
     def __init__(self, config: CriticConfig | None = None):
         super().__init__()
@@ -63,15 +64,21 @@ class Critic(nn.Module):
         self.near = nn.Sequential(nn.Linear(3, 2 * c), nn.LeakyReLU(0.01), nn.Linear(2 * c, 2 * c))
         self.pooled = nn.Sequential(nn.Linear(6 * c, 2 * c), nn.LeakyReLU(0.01), nn.Linear(2 * c, 3))
         self.act = nn.LeakyReLU(0.01)
-        centre = (torch.arange(cfg.cells, dtype=torch.float32) + 0.5 - cfg.cells / 2) * COARSE_M / OFFSET_SCALE_M
-        self.register_buffer("centre", centre, persistent=False)
+        self.register_buffer("centre", self.centres(cfg.cells), persistent=False)
+
+    @staticmethod
+    def centres(cells: int) -> Tensor:
+        """``[cells]``: the coarse cells' centres along a window's side, in units of OFFSET_SCALE_M from its middle."""
+        return (torch.arange(cells, dtype=torch.float32) + 0.5 - cells / 2) * COARSE_M / OFFSET_SCALE_M
 
     def forward(self, x: Tensor, near: Tensor) -> tuple[Tensor, Tensor]:
         h = self.act(self.stem(x))
         for conv in self.blocks:
             h = h + self.act(conv(h))
         p = torch.softmax(self.where(h).flatten(1), 1).reshape(-1, *h.shape[2:])  # [R, H, W]
-        where = torch.stack([(p.sum(2) * self.centre).sum(1), (p.sum(1) * self.centre).sum(1)], 1)
+        # a window of another size than the training's (other simulator constants) runs on its own cells
+        centre = self.centre if h.shape[-1] == self.config.cells else self.centres(h.shape[-1]).to(h)
+        where = torch.stack([(p.sum(2) * centre).sum(1), (p.sum(1) * centre).sum(1)], 1)
         valid = near[:, :, 2:]
         e = self.near(near) * valid  # [R, M, 2c]: padding rows count 0 in the sum, -1e4 in the max
         e_max = (e - 1e4 * (1.0 - valid)).amax(1).clamp(min=-1.0)

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+import numpy as np
+
 from madp.controllers import display_name
 from madp.errors import InputError
 from madp.io.jsonfile import read_json
 
-from madp.eval.stats import order_controllers
+from madp.eval.stats import column, has_column, order_controllers
 
 #: What these blocks read: a :class:`madp.results.pages.Kept` (this module does not import that one, which
 #: imports it) and its ``runs`` entry of a directory (:func:`madp.results.pages.run_of`).
@@ -90,28 +92,39 @@ def step_time_table(kept: Kept, summaries: dict[str, dict[str, Any]], run_of: Ru
 
 def network_default_note(kept: Kept, network_suite: str = "faults", ideal: str = "ideal") -> str:
     """For each controller, the environments where the network suite's ideal group and the default's run
-    of the same scenarios (matched by seed) end apart, by :data:`AGREE` or more."""
+    of the same scenarios (matched by seed, and for MADP by its selection rule) end apart, by
+    :data:`AGREE` or more; a controller whose runs chose by different rules is named, not paired."""
     if network_suite not in kept.default:
         return f"No kept `{network_suite}` results."
     net = kept.default[network_suite]
-    base = {}  # (scenario seed, controller) -> (suite, environment key, final cost) in the default's other suites
+    rule = lambda cols: column(cols, "select").astype(str) if has_column(cols, "select") else np.full(len(cols["controller"]), "")  # noqa: E731
+    base = {}  # (scenario seed, controller) -> (suite, environment key, final cost, rule) in the default's other suites
     for suite, cols in kept.default.items():
         if suite != network_suite:
-            base.update({(int(s), str(c)): (suite, f"{g}-{int(e):03d}", float(f)) for s, c, g, e, f in
-                         zip(cols["scenario_seed"], cols["controller"], cols["group"], cols["env"], cols["final_cost"])})
+            base.update({(int(s), str(c)): (suite, f"{g}-{int(e):03d}", float(f), str(r)) for s, c, g, e, f, r in
+                         zip(cols["scenario_seed"], cols["controller"], cols["group"], cols["env"], cols["final_cost"],
+                             rule(cols))})
     sel = net["group"] == ideal
-    rows = [(int(s), str(c), float(f)) for s, c, f in zip(net["scenario_seed"][sel], net["controller"][sel],
-                                                           net["final_cost"][sel]) if (int(s), str(c)) in base]
-    if not rows:
+    shared = [(int(s), str(c), float(f), str(r)) for s, c, f, r in zip(net["scenario_seed"][sel], net["controller"][sel],
+                                                                      net["final_cost"][sel], rule(net)[sel])
+              if (int(s), str(c)) in base]
+    if not shared:
         return f"The `{network_suite}` suite's `{ideal}` group shares no environment with the default's other runs."
+    rows = [(s, c, f) for s, c, f, r in shared if base[s, c][3] == r]
+    other = {c: (r, base[s, c][3]) for s, c, f, r in shared if base[s, c][3] != r}
     parts = []
     for c in order_controllers([r[1] for r in rows]):
         pairs = [(base[s, cc], f) for s, cc, f in rows if cc == c]
-        differ = [(key, b, f) for (_, key, b), f in pairs if abs(f - b) >= AGREE]
+        differ = [(key, b, f) for (_, key, b, _), f in pairs if abs(f - b) >= AGREE]
         shown = "; ".join(f"`{key}` {f:.3f} against {b:.3f}" for key, b, f in differ[:3]) + ("; …" if len(differ) > 3 else "")
         parts.append(f"{display_name(c)} on {len(pairs) - len(differ)} of {len(pairs)} ({shown})" if differ
                      else f"{display_name(c)} on all {len(pairs)}")
-    suites = sorted({base[s, c][0] for s, c, _ in rows})
-    return (f"The `{ideal}` network's environments are the {len({s for s, _, _ in rows})} of "
-            f"{', '.join(f'`{s}`' for s in suites)} "
-            f"above, with the same seeds; they end where the default's run ends, to {AGREE:g}, for " + ", ".join(parts) + ".")
+    suites = sorted({base[s, c][0] for s, c, _, _ in shared})
+    text = (f"The `{ideal}` network's environments are the {len({s for s, _, _, _ in shared})} of "
+            f"{', '.join(f'`{s}`' for s in suites)} above, with the same seeds")
+    if parts:
+        text += f"; they end where the default's run ends, to {AGREE:g}, for " + ", ".join(parts)
+    for c in order_controllers(list(other)):
+        text += (f"; {display_name(c)} is not paired: it chose among its samples by `{other[c][0]}` there and by "
+                 f"`{other[c][1]}` in the default's run")
+    return text + "."

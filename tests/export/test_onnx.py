@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from madp.io.checksum import sha256_file
-from madp.export.onnx import GRAPHS, graph_modules
+from madp.export.onnx import GRAPHS, LEARNED_GRAPHS, graph_modules
 from madp.policies import shipped_checkpoint
 from tests.robot.robot_testutils import export_tiny
 
@@ -81,11 +81,12 @@ def test_export_command_on_the_shipped_policy(tmp_path):
     ship = shipped_checkpoint("madp")
     res = CliRunner().invoke(app, ["export", str(ship), "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert {p.name for p in tmp_path.iterdir()} == {*GRAPHS.values(), "runtime.json"}
+    # the shipped file carries a critic: the default rule, critic, exports its graph too
+    assert {p.name for p in tmp_path.iterdir()} == {*GRAPHS.values(), *LEARNED_GRAPHS["critic"].values(), "runtime.json"}
     spec = json.loads((tmp_path / "runtime.json").read_text())
     assert spec["source"]["sha256"] == sha256_file(ship)
     assert spec["sampler"]["name"] == "dpm++" and spec["sampler"]["steps"] == 3 == len(spec["sampler"]["coefficients"])
-    assert spec["selection"] == {"frame": "d4", "rule": "explore", "candidates": 4, "grid_m": 4}
+    assert spec["selection"] == {"frame": "d4", "rule": "critic", "candidates": 4, "grid_m": 4}
     assert spec["radii"]["comm_radius_m"] == 256.0 and len(spec["action_stats"]["std"]) == 2
     # the real policy's graphs against PyTorch too, on a neighbourhood of 7 tokens
     from madp.policies import load

@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 from madp.cli import app
 from madp.errors import InputError
 from madp.results.notes import AGREE
+from madp.selection import DEFAULT_RULE
 from madp.results.pages import END, load_kept, render, replace_blocks, update_pages
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -26,15 +27,18 @@ PAGES = [ROOT / "README.md", ROOT / "docs"]
 
 
 def write_run(root: Path, rel: str, suite: str, groups: dict[str, int], costs: dict[str, np.ndarray],
-              seeds_of: str | None = None) -> None:
+              seeds_of: str | None = None, rules: dict[str, str] | None = None) -> None:
     """A suite directory of madp eval: ``costs[controller]`` holds one final cost per environment, the
     environments being ``groups``' in order (group → count; an environment's seed depends on its group
-    and index alone, as the suites' do, or on group ``seeds_of``'s: the faults suite's are uniform's)."""
+    and index alone, as the suites' do, or on group ``seeds_of``'s: the faults suite's are uniform's);
+    ``rules``: a ``select`` column, each controller's selection rule (none without)."""
     envs = [(g, i) for g, n in groups.items() for i in range(n)]
     seed = lambda g, i: 1000 * (1 + zlib.crc32((seeds_of or g).encode()) % 1000) + i  # noqa: E731
     rows = [(suite, g, i, seed(g, i), c, float(costs[c][k]), 1.0) for c in costs for k, (g, i) in enumerate(envs)]
     names = ["suite", "group", "env", "scenario_seed", "controller", "final_cost", "mean_step_ms"]
     table = pa.table({n: [r[j] for r in rows] for j, n in enumerate(names)})
+    if rules is not None:
+        table = table.append_column("select", pa.array([rules.get(r[4], "") for r in rows]))
     (root / rel).mkdir(parents=True)
     pq.write_table(table, root / rel / "results.parquet")
     config = {"suite": suite, "steps": 600, "sampler": "dpm++", "sampling_steps": 3, "select": "explore",
@@ -196,13 +200,22 @@ def test_the_network_default_note_names_the_environments_that_end_apart(folder):
     assert note == ("The `ideal` network's environments are the 6 of `uniform` above, with the same seeds; they end "
                     f"where the default's run ends, to 0.001, for DCVT on all 6, MADP on 5 of 6 (`uniform-001` "
                     f"{ideal['madp'][1]:.3f} against {madp[1]:.3f}).")
+    # a MADP whose network runs chose by another rule than the default's is named, not paired
+    write_run(root, "net-2/faults", "faults", {"ideal": 6}, ideal, seeds_of="uniform", rules={"madp": "explore"})
+    spec["default"]["dirs"][-1] = "net-2/faults"
+    spec["runs"]["net-2"] = {"date": "2026-01-05", "commit": "fedcba8"}
+    (root / "kept.json").write_text(json.dumps(spec))
+    assert render(load_kept(root))["network-default"] == (
+        "The `ideal` network's environments are the 6 of `uniform` above, with the same seeds; they end where the "
+        "default's run ends, to 0.001, for DCVT on all 6; MADP is not paired: it chose among its samples by "
+        "`explore` there and by `` in the default's run.")
 
 
 def test_the_step_time_block_is_the_kept_benchmark_at_the_default(folder):
     root = folder[0]
     runs = render(load_kept(root))["step-time"]  # the kept runs' own times (1 ms a step in write_run)
     assert runs.endswith("| `uniform` | 1.0 | 1.0 | 2026-01-01 `abc1234`, 2026-01-02 `def5678` |") and "One control" not in runs
-    step = {"candidates": 4, "select": "explore", "sampler": "dpm++", "num_steps": 3, "num_robots": 32, "threads": 2,
+    step = {"candidates": 4, "select": DEFAULT_RULE, "sampler": "dpm++", "num_steps": 3, "num_robots": 32, "threads": 2,
             "latency_s": 0.01254}
     bench = {"paper_latency_s": 0.36, "selection": [{**step, "select": "cell", "latency_s": 0.02}, step],
              "robot_runtime": {"threads": 1, "mean_neighbourhood": 5.0, "onnxruntime_per_robot_s": 0.00529}}
@@ -214,7 +227,7 @@ def test_the_step_time_block_is_the_kept_benchmark_at_the_default(folder):
     block = render(load_kept(root))["step-time"]
     assert "(N = 32, PyTorch, 2 threads) | 12.5 ms |" in block and "5.0 robots per neighbourhood) | 5.3 ms |" in block
     assert "Measured 2026-01-05 at commit `1234abc` on 2 cores: `madp bench infer --no-sweep`" in block
-    assert "`explore` among K = 4, DPM-Solver++(2M) S = 3" in block and "The paper's: 0.36 s" in block
+    assert f"`{DEFAULT_RULE}` among K = 4, DPM-Solver++(2M) S = 3" in block and "The paper's: 0.36 s" in block
     bench["selection"] = bench["selection"][:1]
     (root / "bench.json").write_text(json.dumps(bench))
     with pytest.raises(InputError, match="no decentralized control step at the default"):
