@@ -59,14 +59,7 @@ def load_policy(path: str | Path, device: str | torch.device = "cpu") -> tuple[n
     if joined is not None:
         metadata, state = joined
     else:
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: checkpoint not found")
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                metadata = dict(f.metadata() or {})
-        except Exception as e:  # safetensors raises its own error types for truncated/garbled files
-            raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
-        state = read_weights(path, device)
+        metadata, state = read_metadata(path), read_weights(path, device)
     kind = metadata.get("kind")
     if kind not in ("madp", "lpac") or "config" not in metadata:
         raise InputError(f"{path}: not a madp policy checkpoint (metadata 'kind' is {kind!r})")
@@ -95,13 +88,7 @@ def load_map_prior(path: str | Path, device: str | torch.device = "cpu"):
     from madp.models.map_prior import MapPrior, MapPriorConfig
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        with safe_open(str(path), framework="pt") as f:
-            text = (f.metadata() or {}).get("map_prior")
-    except Exception as e:
-        raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+    text = read_metadata(path).get("map_prior")
     if text is None:
         return None
     try:
@@ -119,16 +106,7 @@ def carried(path: str | Path) -> tuple[str, ...]:
     """The learned networks (keys of :data:`LEARNED`) the policy file ``path`` carries beside its policy,
     by its metadata; one-line errors for a missing or unreadable file."""
     joined = read_parts(path)  # a checkpoint split into float16 parts (index or a part), else None
-    if joined is not None:
-        metadata = joined[0]
-    else:
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"{path}: checkpoint not found")
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                metadata = dict(f.metadata() or {})
-        except Exception as e:  # safetensors raises its own error types for truncated/garbled files
-            raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
+    metadata = joined[0] if joined is not None else read_metadata(Path(path))
     return tuple(name for name, key in LEARNED.items() if key in metadata)
 
 
@@ -164,6 +142,17 @@ def attach(policy: Path, out: Path, needs: str, net: nn.Module, config: dict, re
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(Path(out), ".safetensors") as tmp:
         save_file(tensors, str(tmp), metadata=metadata)
+
+
+def read_metadata(path: Path) -> dict[str, str]:
+    """The metadata of the safetensors file ``path``; one-line errors for a missing or unreadable file."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            return dict(f.metadata() or {})
+    except Exception as e:  # safetensors raises its own error types for truncated/garbled files
+        raise InputError(f"{path}: not a readable safetensors checkpoint ({type(e).__name__})") from None
 
 
 def read_weights(path: Path, device: str | torch.device = "cpu") -> dict:
