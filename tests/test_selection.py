@@ -72,6 +72,26 @@ def test_a_bad_rule_or_k_is_one_setting_error():
         assert e.value.setting == setting and "\n" not in str(e.value)
 
 
+def test_a_rule_falls_back_only_where_its_network_is_missing():
+    """A fallback is a controller that reads no learned network; the default runs on any policy file
+    (its fallback on one without the network it needs), a rule without a fallback stays itself (and
+    is refused where its network is read); the settings keep K and the rest."""
+    from madp.policies import SamplingSettings
+    from madp.selection import runnable
+
+    for name, r in RULES.items():
+        if r.fallback:
+            assert r.needs and not RULES[r.fallback].needs and not RULES[r.fallback].bound, name
+        for carried in ((), tuple(NEEDS)):
+            expect = r.fallback if r.fallback and r.needs and r.needs not in carried else name
+            assert runnable(name, carried) == expect
+    assert not RULES[runnable(DEFAULT_RULE, ())].needs
+    k8 = SamplingSettings.of(candidates=8)
+    assert k8.fitted(tuple(NEEDS)) is k8
+    fitted = k8.fitted(())
+    assert (fitted.select, fitted.candidates) == (runnable(DEFAULT_RULE, ()), 8)
+
+
 def test_the_records_import_without_torch_or_the_simulator():
     code = "import sys, madp.selection; print(sorted(m for m in ('torch', 'madp.sim', 'numba') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True).stdout

@@ -36,6 +36,33 @@ def test_selection_is_named_in_every_output(tmp_path, checkpoints):
         run_suite(other, "uniform", progress=False)
 
 
+def test_the_default_runs_its_fallback_on_a_policy_file_without_a_critic(tmp_path, checkpoints):
+    """The default rule reads a critic; the shipped file carries one and a fresh one does not: in one
+    run each MADP chooses by the rule its file can run, each row and recording names it, the command
+    prints a note, and config.json keeps the setting asked for."""
+    from typer.testing import CliRunner
+
+    from madp.cli import app
+    from madp.selection import DEFAULT_RULE, RULES
+
+    plain = checkpoints / "madp.safetensors"
+    cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=1, steps=2, controllers=("madp", "madp:fresh"),
+                     named=(("madp:fresh", str(plain)),), workers=1, record=1)
+    fallback = RULES[DEFAULT_RULE].fallback
+    assert fallback and cfg.sampling.select == DEFAULT_RULE and cfg.sampling_of("madp").select == DEFAULT_RULE
+    assert cfg.sampling_of("madp:fresh") == replace(cfg.sampling, select=fallback)
+    run_suite(cfg, "uniform", progress=False)
+    d = tmp_path / "uniform"
+    res = pq.read_table(d / "results.parquet").to_pydict()
+    assert dict(zip(res["controller"], res["select"])) == {"madp": DEFAULT_RULE, "madp:fresh": fallback}
+    assert json.loads((d / "config.json").read_text())["select"] == DEFAULT_RULE
+    _, meta, _ = _read(d / "rollouts" / "uniform-000-madp@fresh.mcap")
+    assert any(m.get("select") == fallback for m in meta.values())
+    res = CliRunner().invoke(app, ["eval", "--suite", "uniform", "--num-envs", "1", "--steps", "1", "--controllers",
+                                   "madp", "--madp", str(plain), "--workers", "1", "--out", str(tmp_path / "cli")])
+    assert res.exit_code == 0 and f"carries no critic; it chooses by {fallback}" in res.output
+
+
 def test_the_oracle_is_labelled_an_upper_bound(tmp_path, checkpoints):
     cfg = EvalConfig(suite="uniform", out=str(tmp_path), num_envs=1, steps=1, controllers=("madp",),
                      madp=str(checkpoints / "madp.safetensors"),
