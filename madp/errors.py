@@ -7,6 +7,7 @@
   message describes the value and starts with that name. The command line names the flag instead.
 - :class:`InputError`: a file or directory madp reads is missing, unreadable or not what it
   expected; the message starts with its path.
+- :func:`check_extra`: the ``SettingError`` of a value that needs a module of an extra not installed.
 
 The data layer's :class:`madp.data_schema.DataError`, the simulator's
 :class:`madp.sim.ScenarioError`, a locked or foreign output directory
@@ -49,3 +50,14 @@ class SettingError(MadpError, ValueError):
 class InputError(MadpError, ValueError):
     """A file or directory madp reads is missing, unreadable or not what was expected; the message
     starts with its path."""
+
+
+def check_extra(setting: str, value: str, extra: str, modules: tuple[str, ...]) -> None:
+    """A one-line :class:`SettingError`, before any work, when ``value`` of ``setting`` needs a module of
+    madp's extra ``extra`` that is not installed (naming the modules and the ``pip install`` that brings them)."""
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise SettingError(setting, f"{value} needs {', '.join(missing)}, which is not installed: "
+                                    f"pip install 'madp[{extra}]'")

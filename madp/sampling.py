@@ -18,7 +18,7 @@ from typing import Any, Mapping, Optional
 
 from madp.errors import SettingError
 
-__all__ = ["KEYS", "NOISES", "RUNTIMES", "SPEC_EXAMPLE", "merge_sampling", "parse_sampling", "sampling_help",
+__all__ = ["KEYS", "NOISES", "ONNX_MODULES", "RUNTIMES", "SPEC_EXAMPLE", "merge_sampling", "parse_sampling", "sampling_help",
            "spec_text"]
 
 #: The spec's keys, each with its type and the setting of :class:`madp.policies.SamplingSettings` it sets.
@@ -29,6 +29,8 @@ KEYS: dict[str, tuple[type, str]] = {
 }
 #: How decentralized MADP runs: the PyTorch policy, or robot by robot through ``madp export``'s files.
 RUNTIMES = ("torch", "onnx")
+#: What the ``onnx`` runtime imports (the export and the robot runtime): madp's ``onnx`` extra.
+ONNX_MODULES = ("onnx", "onnxruntime", "onnxscript")
 #: Where the starting noise of MADP's samples comes from: ``torch``, one generator per environment seeded
 #: by its scenario's seed (``madp eval``, ``madp rollout``, ``madp datagen --policy``; ``madp eval --runtime
 #: onnx`` draws the same); ``robot``, each robot's own from the episode's seed, the step and its id, as a

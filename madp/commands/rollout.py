@@ -32,7 +32,8 @@ def check_runtime(runtime: str, controller: str) -> None:
     """Refuse, before anything is read or run, a ``--runtime`` that is not one of :data:`RUNTIMES`,
     ``onnx`` for a controller other than decentralized MADP, or ``onnx`` without madp's ``onnx`` extra."""
     from madp.controllers import controller_info
-    from madp.eval.runner import ONNX_MODULES, check_extra
+    from madp.errors import check_extra
+    from madp.sampling import ONNX_MODULES
     from madp.sampling import RUNTIMES
 
     if runtime not in RUNTIMES:
@@ -48,7 +49,7 @@ def check_record(record_format: str) -> None:
     """Refuse, before anything runs, a ``--record-format`` that is not one of
     :data:`madp.recordings.recorders.RECORD_FORMATS`, or ``ros2`` without madp's ``ros2`` extra."""
     from madp.recordings.recorders import RECORD_FORMATS
-    from madp.eval.runner import check_extra
+    from madp.errors import check_extra
 
     if record_format not in RECORD_FORMATS:
         raise SettingError("record_format", f"expected one of {', '.join(RECORD_FORMATS)}, got {record_format!r}")

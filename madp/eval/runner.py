@@ -22,7 +22,6 @@ Ray tasks (:mod:`madp.io.ray_backend`) writing into ``OUT/<suite>/``, a path eve
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import multiprocessing as mp
 import os
@@ -38,10 +37,11 @@ from madp.io.owned import clear_owned
 from madp.io.ray_backend import import_ray, ray_imap_unordered
 from madp.io.workers import die_with_parent
 from madp.controllers import CHECKPOINT_KINDS, CLASSICAL, CONTROLLERS, LEARNED, NAMES, controller_info, file_stem, \
-    is_named, make_controller
-from madp.errors import InputError, SettingError
+    is_named, make_controller, resolve_checkpoint
+from madp.errors import InputError, SettingError, check_extra
 from madp.policies import SamplingSettings
-from madp.sampling import RUNTIMES
+from madp.policies.checkpoint import carried
+from madp.sampling import ONNX_MODULES, RUNTIMES
 from madp.sim import CoverageEnv
 from madp.sim.rollout import Actions, Costs, Hook, Links, Positions, Samples, Timing, act_alone, run
 
@@ -50,18 +50,6 @@ from .suites import MAX_NUM_ENVS, EnvSpec, only_groups, suite_envs
 #: Settings added after suites were first written: an older config.json without them had these values.
 SETTING_DEFAULTS = {"noise": "torch", "fixed_noise": False, "frame": "world", "select": "none", "candidates": 1, "video": 0,
                     "device": "cpu", "runtime": "torch", "precision": "fp32"}
-#: What ``--runtime onnx`` imports (the export and the robot runtime): madp's ``onnx`` extra.
-ONNX_MODULES = ("onnx", "onnxruntime", "onnxscript")
-
-
-def check_extra(setting: str, value: str, extra: str, modules: tuple[str, ...]) -> None:
-    """A one-line error, before any work, when ``value`` of ``setting`` needs a module of madp's extra
-    ``extra`` that is not installed (naming the modules and the ``pip install`` that brings them)."""
-    missing = [m for m in modules if importlib.util.find_spec(m) is None]
-    if missing:
-        raise SettingError(setting, f"{value} needs {', '.join(missing)}, which is not installed: "
-                                    f"pip install 'madp[{extra}]'")
-
 
 @dataclass(frozen=True)
 class EvalConfig:
@@ -117,9 +105,6 @@ class EvalConfig:
         fallback where the file lacks the network the rule reads: :meth:`SamplingSettings.fitted`)."""
         if not controller_info(controller).samples:
             return self.sampling
-        from madp.controllers import resolve_checkpoint
-        from madp.policies.checkpoint import carried
-
         return self.sampling.fitted(carried(resolve_checkpoint(controller, self.checkpoint(controller))))
 
     def controller(self, name: str, spec: EnvSpec):
@@ -130,7 +115,6 @@ class EvalConfig:
         if self.runtime == "onnx" and info.samples:
             if info.mode != "decentralized":
                 raise SettingError("runtime", f"onnx runs MADP robot by robot (decentralized), not {name}")
-            from madp.controllers import resolve_checkpoint
             from madp.export.swarm import OnnxMADPPolicy
 
             return OnnxMADPPolicy(resolve_checkpoint(name, self.checkpoint(name)), self.sampling_of(name), seed=spec.seed)

@@ -125,7 +125,7 @@ def export_critic(net, out: Path) -> Path:
     """Write the critic ``net`` (a :class:`madp.models.critic.Critic`, eval mode) as one ONNX graph to
     ``out`` atomically: ``windows [R, 5, H, H]`` and ``neighbours [R, M, 3]`` float32
     (:func:`madp.robot.critic.critic_inputs`) -> ``mass [R]`` and ``offset [R, 2]`` (in units of
-    :data:`madp.robot.critic.OFFSET_SCALE_M`), the robots axis dynamic, run torch-free by
+    :data:`madp.robot.critic.OFFSET_SCALE_M`), the robots axis and H dynamic, run torch-free by
     :func:`madp.robot.critic.onnx_predictor`; returns ``out``."""
     from madp.robot.critic import MAX_NEIGHBOURS
 
@@ -134,7 +134,7 @@ def export_critic(net, out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     near = torch.rand(2, MAX_NEIGHBOURS, 3).round()
     return _write_graph(net.eval(), (torch.rand(2, 5, cells, cells), near), ("windows", "neighbours"),
-                        ("mass", "offset"), {"windows": {0: "robots"}, "neighbours": {0: "robots"}, "mass": {0: "robots"},
+                        ("mass", "offset"), {"windows": {0: "robots", 2: "cells", 3: "cells"}, "neighbours": {0: "robots"}, "mass": {0: "robots"},
                                              "offset": {0: "robots"}}, out)
 
 

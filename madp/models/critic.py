@@ -64,7 +64,6 @@ class Critic(nn.Module):
         self.near = nn.Sequential(nn.Linear(3, 2 * c), nn.LeakyReLU(0.01), nn.Linear(2 * c, 2 * c))
         self.pooled = nn.Sequential(nn.Linear(6 * c, 2 * c), nn.LeakyReLU(0.01), nn.Linear(2 * c, 3))
         self.act = nn.LeakyReLU(0.01)
-        self.register_buffer("centre", self.centres(cfg.cells), persistent=False)
 
     @staticmethod
     def centres(cells: int) -> Tensor:
@@ -76,8 +75,7 @@ class Critic(nn.Module):
         for conv in self.blocks:
             h = h + self.act(conv(h))
         p = torch.softmax(self.where(h).flatten(1), 1).reshape(-1, *h.shape[2:])  # [R, H, W]
-        # a window of another size than the training's (other simulator constants) runs on its own cells
-        centre = self.centre if h.shape[-1] == self.config.cells else self.centres(h.shape[-1]).to(h)
+        centre = self.centres(h.shape[-1]).to(h)  # any window size (other simulator constants), in the graph too
         where = torch.stack([(p.sum(2) * centre).sum(1), (p.sum(1) * centre).sum(1)], 1)
         valid = near[:, :, 2:]
         e = self.near(near) * valid  # [R, M, 2c]: padding rows count 0 in the sum, -1e4 in the max

@@ -95,11 +95,12 @@ def test_selection_latency_has_a_row_per_candidates_and_rule(tmp_path):
             parse_candidates(bad)
     assert_one_line(*cli("bench", "infer", "--no-sweep", "--candidates", "1,x", "--presets", "cpu"), "--candidates")
     rows = bench_select(parse_candidates("1,2,2:2"), repeats=1, threads=1, num_robots=8)
-    rules = ["explore", "oracle", "oracle_hood", "oracle_cell", "oracle_joint"]
+    # the shipped policy file carries a critic (no map prior): its rules are timed too
+    rules = ["explore", "critic", "critic_hood", "oracle", "oracle_hood", "oracle_cell", "oracle_joint"]
     assert [(r["candidates"], r["num_steps"], r["select"]) for r in rows] == [
         (1, 3, "none"), *[(2, 3, x) for x in rules], *[(2, 2, x) for x in rules]]
     assert all(r["latency_s"] > 0 and r["num_robots"] == 8 for r in rows)
     lines = format_table({"sweep": None, "swept": False, "paper_latency_s": 0.36, "device": "cpu", "latency": [],
                           "selection": rows})
-    assert sum(x.strip().startswith("2  2  ") for x in lines) == 5 and sum(x.strip().startswith("2  3  ") for x in lines) == 5
+    assert sum(x.strip().startswith("2  2  ") for x in lines) == len(rules) == sum(x.strip().startswith("2  3  ") for x in lines)
     assert any("K" in x and "select" in x for x in lines)

@@ -29,13 +29,17 @@ def tiny_dir(tmp_path_factory):
 @pytest.mark.parametrize("frame", ["d4", "world"])
 def test_control_steps_match_the_pytorch_policy(frame):
     """Every robot's action of the shipped policy through the exported files, with the same noise,
-    within 1e-4 m/s of the PyTorch policy's (explore among K = 4), over 3 steps of a packed swarm."""
+    within 1e-4 m/s of the PyTorch policy's (the default: the critic it carries, among K = 4), over 3
+    steps of a packed swarm."""
+    from madp.controllers import make_controller
+
     ship = shipped_checkpoint("madp")
     sampling = SamplingSettings(frame=frame)
     sc = Scenario.random(3, SimParams(num_robots=10, num_features=8), launch=(300.0, 300.0, 650.0, 650.0))
     env_t, env_o = CoverageEnv(sc), CoverageEnv(sc)
-    torch_policy = MADPPolicy(load(ship, "madp")[0], sampling=sampling, seed=3)
+    torch_policy = make_controller("madp", str(ship), seed=3, sampling=sampling)
     onnx_policy = OnnxMADPPolicy(ship, sampling, seed=3)
+    assert torch_policy.select == onnx_policy.runtime.rule == sampling.select
     g_t, g_o = noise_generator(3), noise_generator(3)
     for _ in range(3):
         a = torch_policy.act_batch([env_t], [g_t])[0]
