@@ -191,14 +191,17 @@ def cpu_features() -> dict:
 
 def measure_peaks(cfg, device: str = "cpu", rows: int = 2048, square: int | None = None) -> dict:
     """Matmul FLOP/s (float32, bfloat16) at the model's shapes ``[rows, d] @ [d, 4d]`` and back and a
-    ``square``-sided one (default 2048 on the CPU, 8192 on a GPU), each dtype's peak (the highest), and
-    the copy bandwidth (bytes read + written per second, 64 MiB)."""
+    ``square``-sided one (default 2048 on the CPU, 8192 on a GPU; bfloat16 at most 512 on a CPU without
+    bfloat16 instructions, where it is converted and a 2048-sided one takes about a minute), each dtype's
+    peak (the highest), and the copy bandwidth (bytes read + written per second, 64 MiB)."""
     d, h = cfg.d_model, cfg.mlp_ratio * cfg.d_model
-    square = square or (8192 if torch.device(device).type == "cuda" else 2048)
-    shapes = [(rows, d, h), (rows, h, d), (square, square, square)]
+    cpu = torch.device(device).type != "cuda"
+    square = square or (2048 if cpu else 8192)
+    converted = cpu and cpu_features()["bf16_matmul"].startswith("none")
     out: dict = {"device": device, "matmul": []}
     for dtype in ("float32", "bfloat16"):
-        for m, k, n in shapes:
+        side = min(square, 512) if dtype == "bfloat16" and converted else square
+        for m, k, n in [(rows, d, h), (rows, h, d), (side, side, side)]:
             reps = max(3, min(100, round(2e9 / (2 * m * k * n))))
             rate = matmul_flops_per_s(device=device, shape=(m, k, n), dtype=getattr(torch, dtype), reps=reps)
             out["matmul"].append({"dtype": dtype, "shape": [m, k, n], "flops_per_s": rate})
