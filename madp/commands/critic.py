@@ -47,21 +47,31 @@ def critic_train_cmd(
                                    "(0: all of them train; rank on other files)."),
     epochs: int = typer.Option(12, min=1, help="Passes over the training states."),
     rank_weight: float = typer.Option(3.0, min=0.0, help="Weight of the copies' ranking loss beside the cell loss."),
+    lr: float = typer.Option(2e-3, min=0.0, help="Peak learning rate of the one-cycle schedule."),
+    init: Optional[Path] = typer.Option(None, help="Continue from the critic this policy file carries (a next round "
+                                        "on new labels) instead of fresh weights."),
     seed: int = typer.Option(0, min=0, help="Seed of the initial weights and the batches."),
     overwrite: bool = typer.Option(False, help="Replace --out if it exists."),
 ) -> None:
     """Fit the critic to the labels of the first environments, the last ``--held-out`` share left out."""
     from madp.errors import SettingError
+    from madp.io.checksum import sha256_file
+    from madp.models.critic import load_critic
     from madp.training.critic import load_many, split_envs
     from madp.training.critic_fit import train
 
     if out.exists() and not overwrite:
         raise SettingError("out", f"{out} exists; pass --overwrite to replace it")
+    if lr <= 0:
+        raise SettingError("lr", f"expected a learning rate > 0, got {lr!r}")
+    start = load_critic(init) if init is not None else None
+    if start is not None:
+        start.record = {**start.record, "path": str(init), "sha256": sha256_file(init)}
     arrays, meta = load_many(data)
     train_envs, _ = split_envs(arrays["env"], held_out)
-    train(arrays, train_envs, out, epochs=epochs, rank_weight=rank_weight, seed=seed,
+    train(arrays, train_envs, out, epochs=epochs, lr=lr, rank_weight=rank_weight, seed=seed,
           record={"data": [str(p) for p in data], "collect": meta, "held_out": held_out}, log=typer.echo,
-          policy=policy)
+          policy=policy, init=start)
     typer.echo(f"policy with its critic -> {out}")
 
 

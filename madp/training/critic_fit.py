@@ -12,6 +12,10 @@ held out by the caller). Two losses, the second weighted by ``rank_weight`` (3 u
   (:func:`madp.robot.critic.copy_scores`) divided by the state's spread of scores, weighted by how
   much their true changes of J differ (in units of the state's spread of them).
 
+``init`` continues from a trained critic instead of fresh weights (its configuration and mass unit
+kept): a critic's next round on the states the policy it steers reaches, when the earlier labels are
+gone or to keep what it learned from them.
+
 The world's 8 symmetries are the augmentation: one element per batch moves the windows, the offsets
 and the copies' moves alike.
 
@@ -149,11 +153,12 @@ def _losses(net: Critic, b: dict[str, torch.Tensor], g: int) -> tuple[torch.Tens
 
 def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch: int = 8, lr: float = 2e-3,
           rank_weight: float = 3.0, seed: int = 0, config: CriticConfig | None = None, record: dict | None = None,
-          log=print, policy: Path | None = None) -> Critic:
+          log=print, policy: Path | None = None, init: Critic | None = None) -> Critic:
     """Fit a critic to the states of ``data`` (:func:`madp.training.critic.load_labels`) whose
     environment is in ``train_envs``, and write the MADP policy file ``policy`` (None: the shipped one)
     carrying it to ``out`` (:func:`madp.policies.checkpoint.attach`), for the ``critic`` selection rules.
-    ``batch``: states per step; ``rank_weight``: the ranking loss's weight beside the cell loss."""
+    ``batch``: states per step; ``rank_weight``: the ranking loss's weight beside the cell loss;
+    ``init``: a trained critic to continue from (its configuration and mass unit; ``config`` unused)."""
     rows = np.flatnonzero(np.isin(data["env"], train_envs))
     if len(rows) == 0:
         raise SettingError("train_envs", "no state of the labels file is in the training environments")
@@ -161,9 +166,14 @@ def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch
         raise SettingError("rank_weight", f"expected a weight >= 0, got {rank_weight!r}")
     torch.manual_seed(seed)
     data = with_derived(data)
-    mass_unit = float(data["mass"][rows].mean())
-    cfg = CriticConfig(**{**(config or CriticConfig()).to_dict(), "mass_unit": mass_unit})
-    net = Critic(cfg)
+    if init is None:
+        cfg = CriticConfig(**{**(config or CriticConfig()).to_dict(), "mass_unit": float(data["mass"][rows].mean())})
+        net = Critic(cfg)
+    else:
+        cfg = init.config
+        net = Critic(cfg)
+        net.load_state_dict(init.state_dict())
+    mass_unit = cfg.mass_unit
     t = _tensors(data, rows, mass_unit)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     per_epoch = max(1, len(rows) // batch)
@@ -191,7 +201,10 @@ def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch
 
     attach(Path(policy) if policy else shipped_checkpoint("madp"), out, "critic", net, cfg.to_dict(),
            {**(record or {}), "epochs": epochs, "batch": batch, "lr": lr, "rank_weight": rank_weight,
-            "seed": seed, "train_envs": [int(e) for e in train_envs], "states": int(len(rows))})
+            "seed": seed, "states": int(len(rows)),
+            # every environment the critic has learned from, this round's and its init's (rank_study leaves them out)
+            "train_envs": sorted({int(e) for e in train_envs} | {int(e) for e in (init.record if init is not None else {}).get("train_envs", [])}),
+            **({"init": init.record} if init is not None else {})})
     return net
 
 

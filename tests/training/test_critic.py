@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from madp.errors import InputError, SettingError
-from madp.models.critic import critic_predictor, load_critic
+from madp.models.critic import CriticConfig, critic_predictor, load_critic
 from madp.policies.select import oracle_costs, select_actions
 from madp.robot.choice import explore_prior, joint_copy, local_views, lone_steps
 from madp.robot.critic import (copy_scores, critic_choice, critic_costs, critic_inputs, critic_view, displacements_m, neighbour_counts,
@@ -189,6 +189,32 @@ def test_the_critic_trains_into_a_policy_file_and_its_rules_choose_with_it(label
         select_actions("critic", env, cand)
     with pytest.raises(SettingError, match="candidates_mps"):
         critic_costs(held, per_robot[:5], env.params, critic_predictor(loaded))
+
+
+def test_a_next_round_continues_from_a_trained_critic(labels, tmp_path):
+    """``madp critic train --init F``: F's critic (configuration, mass unit, weights) is where training starts,
+    and the record names it and every environment either round learned from (ranking leaves them out)."""
+    d, _ = labels
+    data, _ = load_labels(d / "labels.npz")
+    first = tmp_path / "first.safetensors"
+    train(data, np.array([0]), first, epochs=1, batch=2, log=lambda _: None)
+    start = load_critic(first)
+    start.config = CriticConfig(**{**start.config.to_dict(), "mass_unit": 123.0})  # not the new labels' mean
+    # a zero learning rate leaves the weights where they started: the start is the init's, not fresh ones
+    same = train(data, np.array([1]), tmp_path / "same.safetensors", epochs=1, batch=2, lr=1e-12, log=lambda _: None,
+                 init=start)
+    assert same.config.mass_unit == 123.0
+    assert all(torch.allclose(a, b, atol=1e-6) for a, b in zip(same.state_dict().values(), start.state_dict().values()))
+    code, err = cli("critic", "train", "--data", d / "labels.npz", "--held-out", "0.5", "--epochs", "1",
+                    "--init", first, "--lr", "1e-3", "--out", tmp_path / "next.safetensors")
+    assert code == 0, err
+    nxt = load_critic(tmp_path / "next.safetensors")
+    assert nxt.record["init"]["path"] == str(first) and nxt.record["init"]["train_envs"] == [0]
+    assert nxt.record["train_envs"] == [0] and nxt.record["lr"] == 1e-3
+    assert not all(torch.equal(a, b) for a, b in zip(nxt.state_dict().values(), load_critic(first).state_dict().values()))
+    code, err = cli("critic", "train", "--data", d / "labels.npz", "--init", d / "labels.npz",
+                    "--out", tmp_path / "bad.safetensors")
+    assert code != 0 and "not a critic file" in err and len(err.strip().splitlines()) == 1
 
 
 def test_bad_input_gets_one_line_errors(labels, tmp_path):
