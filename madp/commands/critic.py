@@ -62,8 +62,6 @@ def critic_train_cmd(
 
     if out.exists() and not overwrite:
         raise SettingError("out", f"{out} exists; pass --overwrite to replace it")
-    if lr <= 0:
-        raise SettingError("lr", f"expected a learning rate > 0, got {lr!r}")
     start = load_critic(init) if init is not None else None
     if start is not None:
         start.record = {**start.record, "path": str(init), "sha256": sha256_file(init)}

@@ -164,14 +164,14 @@ def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch
         raise SettingError("train_envs", "no state of the labels file is in the training environments")
     if rank_weight < 0:
         raise SettingError("rank_weight", f"expected a weight >= 0, got {rank_weight!r}")
+    if not lr > 0:
+        raise SettingError("lr", f"expected a learning rate > 0, got {lr!r}")
     torch.manual_seed(seed)
     data = with_derived(data)
-    if init is None:
-        cfg = CriticConfig(**{**(config or CriticConfig()).to_dict(), "mass_unit": float(data["mass"][rows].mean())})
-        net = Critic(cfg)
-    else:
-        cfg = init.config
-        net = Critic(cfg)
+    cfg = init.config if init is not None else \
+        CriticConfig(**{**(config or CriticConfig()).to_dict(), "mass_unit": float(data["mass"][rows].mean())})
+    net = Critic(cfg)
+    if init is not None:
         net.load_state_dict(init.state_dict())
     mass_unit = cfg.mass_unit
     t = _tensors(data, rows, mass_unit)
@@ -199,11 +199,11 @@ def train(data: dict, train_envs: np.ndarray, out: Path, epochs: int = 12, batch
     net.eval()
     from madp.policies.checkpoint import attach, shipped_checkpoint
 
+    earlier = init.record.get("train_envs", []) if init is not None else []
+    learned_from = sorted({int(e) for e in (*train_envs, *earlier)})  # both rounds': rank_study leaves them out
     attach(Path(policy) if policy else shipped_checkpoint("madp"), out, "critic", net, cfg.to_dict(),
            {**(record or {}), "epochs": epochs, "batch": batch, "lr": lr, "rank_weight": rank_weight,
-            "seed": seed, "states": int(len(rows)),
-            # every environment the critic has learned from, this round's and its init's (rank_study leaves them out)
-            "train_envs": sorted({int(e) for e in train_envs} | {int(e) for e in (init.record if init is not None else {}).get("train_envs", [])}),
+            "seed": seed, "states": int(len(rows)), "train_envs": learned_from,
             **({"init": init.record} if init is not None else {})})
     return net
 
