@@ -187,13 +187,17 @@ def world_prefix(seed: int, index: int, params: SimParams | None = None) -> Colu
 
 def load_many(paths) -> tuple[dict, dict]:
     """The labels files ``paths`` (:func:`load_labels`) as one: their states concatenated, the settings
-    of the first (one-line errors unless they were collected alike, on different environments)."""
+    of the first (one-line errors unless they were collected alike, on different environments).
+
+    The files may come from different drivers (one round's states where its own rule drove, the next
+    round's where the critic learned from them drove): a label is the true J after a copy's actions,
+    whatever policy reached the state. ``policies`` lists each file's driver, in order."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise SettingError("data", "expected at least one labels file")
     loaded = [load_labels(p) for p in paths]
     meta = loaded[0][1]
-    same = ("every", "steps", "copies", "seed", "policy")
+    same = ("every", "steps", "copies", "seed")
     for p, (_, m) in zip(paths[1:], loaded[1:]):
         if any(m.get(k) != meta.get(k) for k in same):
             raise InputError(f"{p}: collected with other settings than {paths[0]} ({', '.join(same)} must agree)")
@@ -201,7 +205,8 @@ def load_many(paths) -> tuple[dict, dict]:
     if len(np.unique(np.concatenate(envs))) != sum(len(e) for e in envs):
         raise InputError("the labels files share environments; expected each rollout once")
     data = {k: np.concatenate([d[k] for d, _ in loaded]) for k in loaded[0][0]}
-    return data, {**meta, "files": [str(p) for p in paths], "states": int(len(data["env"])),
+    drivers = [{k: m.get(k) for k in ("policy", "select", "candidates")} for _, m in loaded]
+    return data, {**meta, "files": [str(p) for p in paths], "policies": drivers, "states": int(len(data["env"])),
                   "num_envs": int(sum(len(e) for e in envs))}
 
 

@@ -3,6 +3,8 @@ copies' scores and choices, training and the ranking numbers, and the one-line e
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -215,6 +217,18 @@ def test_a_next_round_continues_from_a_trained_critic(labels, tmp_path):
     code, err = cli("critic", "train", "--data", d / "labels.npz", "--init", d / "labels.npz",
                     "--out", tmp_path / "bad.safetensors")
     assert code != 0 and "not a critic file" in err and len(err.strip().splitlines()) == 1
+
+
+def test_rounds_from_different_drivers_load_as_one_but_not_other_settings(labels, tmp_path):
+    d, _ = labels
+    shipped = Path(__file__).parents[2] / "madp" / "checkpoints" / "madp-cpu.safetensors"
+    collect(tmp_path / "next.npz", 1, every=2, steps=3, copies=3, first=2, policy=str(shipped), progress=False)
+    data, meta = load_many([d / "labels.npz", tmp_path / "next.npz"])
+    assert list(data["env"]) == [0, 1, 0, 1, 2, 2] and meta["num_envs"] == 3 and meta["states"] == 6
+    assert [m["policy"] for m in meta["policies"]] == ["shipped", str(shipped)]
+    collect(tmp_path / "other.npz", 1, every=2, steps=3, copies=2, first=3, progress=False)
+    with pytest.raises(InputError, match="other settings"):
+        load_many([d / "labels.npz", tmp_path / "other.npz"])
 
 
 def test_bad_input_gets_one_line_errors(labels, tmp_path):
