@@ -187,7 +187,7 @@ def world_prefix(seed: int, index: int, params: SimParams | None = None) -> Colu
 
 def load_many(paths) -> tuple[dict, dict]:
     """The labels files ``paths`` (:func:`load_labels`) as one: their states concatenated, the settings
-    of the first (one-line errors unless they were collected alike, on different environments).
+    they share (one-line errors unless they were collected alike, on different environments).
 
     The files may come from different drivers (one round's states where its own rule drove, the next
     round's where the critic learned from them drove): a label is the true J after a copy's actions,
@@ -205,8 +205,10 @@ def load_many(paths) -> tuple[dict, dict]:
     if len(np.unique(np.concatenate(envs))) != sum(len(e) for e in envs):
         raise InputError("the labels files share environments; expected each rollout once")
     data = {k: np.concatenate([d[k] for d, _ in loaded]) for k in loaded[0][0]}
-    drivers = [{k: m.get(k) for k in ("policy", "select", "candidates")} for _, m in loaded]
-    return data, {**meta, "files": [str(p) for p in paths], "policies": drivers, "states": int(len(data["env"])),
+    driver = ("policy", "select", "candidates")
+    drivers = [{k: m.get(k) for k in driver} for _, m in loaded]
+    shared = {k: v for k, v in meta.items() if k not in driver}
+    return data, {**shared, "files": [str(p) for p in paths], "policies": drivers, "states": int(len(data["env"])),
                   "num_envs": int(sum(len(e) for e in envs))}
 
 

@@ -225,7 +225,7 @@ def test_rounds_from_different_drivers_load_as_one_but_not_other_settings(labels
     collect(tmp_path / "next.npz", 1, every=2, steps=3, copies=3, first=2, policy=str(shipped), progress=False)
     data, meta = load_many([d / "labels.npz", tmp_path / "next.npz"])
     assert list(data["env"]) == [0, 1, 0, 1, 2, 2] and meta["num_envs"] == 3 and meta["states"] == 6
-    assert [m["policy"] for m in meta["policies"]] == ["shipped", str(shipped)]
+    assert [m["policy"] for m in meta["policies"]] == ["shipped", str(shipped)] and "policy" not in meta
     collect(tmp_path / "other.npz", 1, every=2, steps=3, copies=2, first=3, progress=False)
     with pytest.raises(InputError, match="other settings"):
         load_many([d / "labels.npz", tmp_path / "other.npz"])
