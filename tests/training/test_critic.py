@@ -3,14 +3,13 @@ copies' scores and choices, training and the ranking numbers, and the one-line e
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
 from madp.errors import InputError, SettingError
 from madp.models.critic import CriticConfig, critic_predictor, load_critic
+from madp.policies.checkpoint import shipped_checkpoint
 from madp.policies.select import oracle_costs, select_actions
 from madp.robot.choice import explore_prior, joint_copy, local_views, lone_steps
 from madp.robot.critic import (copy_scores, critic_choice, critic_costs, critic_inputs, critic_view, displacements_m, neighbour_counts,
@@ -221,7 +220,7 @@ def test_a_next_round_continues_from_a_trained_critic(labels, tmp_path):
 
 def test_rounds_from_different_drivers_load_as_one_but_not_other_settings(labels, tmp_path):
     d, _ = labels
-    shipped = Path(__file__).parents[2] / "madp" / "checkpoints" / "madp-cpu.safetensors"
+    shipped = shipped_checkpoint("madp")
     collect(tmp_path / "next.npz", 1, every=2, steps=3, copies=3, first=2, policy=str(shipped), progress=False)
     data, meta = load_many([d / "labels.npz", tmp_path / "next.npz"])
     assert list(data["env"]) == [0, 1, 0, 1, 2, 2] and meta["num_envs"] == 3 and meta["states"] == 6
